@@ -1,0 +1,1 @@
+"""Sub-commands of the ``polyhull`` command line, one module each."""

@@ -1,0 +1,129 @@
+"""Depth frames and frames files.
+
+A depth image is z-depth (not ray length) in [m] as float32, or uint16 millimetres as
+RealSense, Kinect and ROS write it. Special values follow ROS REP 117: 0 and NaN are
+unknown (the pixel frees nothing), -inf is "too close" (nothing free), +inf is "no return"
+(free up to the rated range). Values outside the camera's range are invalid too.
+
+A frames file is ``.npz``: one float32 (H, W) depth array [m] per camera name, plus ``q``
+(joint positions [rad]) and ``stamp`` [s].
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FrameError
+from .typed import ArrayF32, ArrayF64
+
+__all__ = ["DepthFrame", "FramesFile", "load_frames", "save_frames"]
+
+_RESERVED = ("q", "stamp")
+
+
+@dataclass(frozen=True, eq=False)
+class DepthFrame:
+    """One depth image of one camera.
+
+    Attributes:
+        camera: Name of the camera that took it.
+        depth: (H, W) float32 z-depth [m] (read-only).
+        stamp: Acquisition time [s].
+        seq: Frame counter, if the driver gives one (duplicate detection).
+    """
+
+    camera: str
+    depth: ArrayF32
+    stamp: float = 0.0
+    seq: int | None = None
+
+    def __post_init__(self) -> None:
+        depth = np.asarray(self.depth)
+        if depth.ndim != 2 or depth.size == 0:
+            raise FrameError(
+                f"frame of camera '{self.camera}': depth must be a 2-D (H, W) array, "
+                f"got shape {depth.shape}"
+            )
+        if depth.dtype == np.uint16:
+            depth = depth.astype(np.float32) * np.float32(1e-3)  # 0 stays 0: unknown
+        elif depth.dtype in (np.float32, np.float64):
+            depth = depth.astype(np.float32, copy=depth.dtype != np.float32)
+        else:
+            raise FrameError(
+                f"frame of camera '{self.camera}': depth dtype must be float32 metres or "
+                f"uint16 millimetres, got {depth.dtype}"
+            )
+        if depth is self.depth:
+            depth = depth.copy()
+        depth.setflags(write=False)
+        object.__setattr__(self, "depth", depth)
+        if not np.isfinite(self.stamp):
+            raise FrameError(f"frame of camera '{self.camera}': stamp must be finite, got {self.stamp!r}")
+        object.__setattr__(self, "stamp", float(self.stamp))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W)."""
+        return self.depth.shape  # type: ignore[return-value]
+
+
+@dataclass(frozen=True, eq=False)
+class FramesFile:
+    """The content of a frames file: depth per camera, joint positions and a stamp."""
+
+    frames: dict[str, DepthFrame]
+    q: ArrayF64
+    stamp: float
+
+
+def save_frames(path: str | Path, frames: Mapping[str, DepthFrame], q: ArrayF64, stamp: float) -> Path:
+    """Write ``frames`` (camera name -> DepthFrame), ``q`` [rad] and ``stamp`` [s] to ``.npz``."""
+    path = Path(path)
+    arrays: dict[str, np.ndarray] = {}
+    for name, frame in frames.items():
+        if name in _RESERVED:
+            raise FrameError(f"{path}: camera name {name!r} is reserved in frames files")
+        arrays[name] = np.asarray(frame.depth, dtype=np.float32)
+    arrays["q"] = np.asarray(q, dtype=np.float64)
+    arrays["stamp"] = np.asarray(float(stamp))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
+    return path
+
+
+def load_frames(path: str | Path) -> FramesFile:
+    """Read a frames file; raise :class:`FrameError` naming the file and field when invalid."""
+    path = Path(path)
+    if not path.is_file():
+        raise FrameError(f"{path}: no such frames file")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise FrameError(f"{path}: not a readable .npz frames file ({exc})") from exc
+    with data:
+        keys = list(data.keys())
+        for key in _RESERVED:
+            if key not in keys:
+                raise FrameError(f"{path}: missing field {key!r} (frames files hold q and stamp)")
+        q = np.asarray(data["q"], dtype=np.float64).reshape(-1)
+        if not np.all(np.isfinite(q)):
+            raise FrameError(f"{path}: field 'q' must be finite, got {q.tolist()}")
+        stamp_arr = np.asarray(data["stamp"])
+        if stamp_arr.size != 1 or not np.isfinite(float(stamp_arr.reshape(-1)[0])):
+            raise FrameError(f"{path}: field 'stamp' must be one finite number [s]")
+        stamp = float(stamp_arr.reshape(-1)[0])
+        frames: dict[str, DepthFrame] = {}
+        for key in keys:
+            if key in _RESERVED:
+                continue
+            try:
+                frames[key] = DepthFrame(camera=key, depth=data[key], stamp=stamp)
+            except FrameError as exc:
+                raise FrameError(f"{path}: field {key!r}: {exc}") from exc
+    if not frames:
+        raise FrameError(f"{path}: holds no depth arrays (one per camera name expected)")
+    return FramesFile(frames=frames, q=q, stamp=stamp)
