@@ -220,3 +220,21 @@ def test_invalid_requests():
         SensorEffects(dropout=1.5)
     with pytest.raises(PolyhullError, match="flying_share"):
         SensorEffects(flying_share=-0.1)
+
+
+def test_small_cell_fixture_with_the_urdf_robot():
+    from pathlib import Path
+
+    from polyhull.cellfile import load_cell
+
+    cell = load_cell(Path(__file__).parent.parent / "fixtures" / "cells" / "small_cell.toml")
+    sim = Simulator(cell)
+    assert sim.robot is not None
+    frames = sim.render(seed=0, effects=SensorEffects.none())
+    reference = sim.reference()
+    for cam in cell.cameras:
+        depth = frames[cam.name].depth
+        assert depth.shape == cam.shape
+        assert np.all(depth <= reference[cam.name])
+        robot_pixels = depth < reference[cam.name] - 0.05
+        assert robot_pixels.mean() > 0.01  # the arm in the middle of the cell is seen
