@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import manifold3d as m3
 import numpy as np
@@ -377,20 +377,29 @@ class PersonTrack:
         """True while the person is between start and end."""
         return self.t0 <= t < self.t0 + self.duration
 
-    def mesh(self, t: float) -> trimesh.Trimesh:
-        """The person at time ``t`` [s] (world frame)."""
+    def params(self, t: float) -> dict[str, Any]:
+        """The :func:`make_person` keyword arguments of the person at time ``t`` [s].
+
+        Plain floats and strings, so they can be recorded (e.g. in a fixture manifest) and
+        replayed with ``make_person(**params)``.
+        """
         if self.is_walking(t):
             stride = 0.8 * self.height if self.stride is None else self.stride
-            phase = 2.0 * np.pi * self.distance(t) / stride
+            phase = float(2.0 * np.pi * self.distance(t) / stride)
             pose: PersonPose = "walking"
         else:
             phase = 0.0
             pose = "standing" if t < self.t0 else self.end_pose
-        return make_person(
-            self.height,
-            pose,
-            position=tuple(self.position(t)),
-            yaw=self.yaw,
-            phase=phase,
-            floor_z=self.floor_z,
-        )
+        x, y = self.position(t)
+        return {
+            "height": float(self.height),
+            "pose": pose,
+            "position": (float(x), float(y)),
+            "yaw": self.yaw,
+            "phase": phase,
+            "floor_z": float(self.floor_z),
+        }
+
+    def mesh(self, t: float) -> trimesh.Trimesh:
+        """The person at time ``t`` [s] (world frame)."""
+        return make_person(**self.params(t))

@@ -130,3 +130,13 @@ def test_person_track():
     assert reach.max() > 0.6
     with pytest.raises(GeometryError, match="speed"):
         PersonTrack(start=(0.0, 0.0), end=(1.0, 0.0), speed=0.0)
+
+
+def test_person_track_params_replay_the_mesh():
+    track = PersonTrack(start=(0.0, 1.0), end=(2.0, 1.0), speed=1.0)
+    params = track.params(0.5)
+    assert params["pose"] == "walking"
+    assert params["position"] == (0.5, 1.0)
+    assert params["phase"] == pytest.approx(2 * np.pi * 0.5 / (0.8 * 1.75))
+    np.testing.assert_array_equal(make_person(**params).vertices, track.mesh(0.5).vertices)
+    assert track.params(5.0)["pose"] == "standing"

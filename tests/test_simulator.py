@@ -238,3 +238,59 @@ def test_small_cell_fixture_with_the_urdf_robot():
         assert np.all(depth <= reference[cam.name])
         robot_pixels = depth < reference[cam.name] - 0.05
         assert robot_pixels.mean() > 0.01  # the arm in the middle of the cell is seen
+
+
+FRAMES_DIR = __import__("pathlib").Path(__file__).parent.parent / "fixtures" / "frames"
+
+
+def _manifest():
+    import json
+
+    return json.loads((FRAMES_DIR / "manifest.json").read_text())
+
+
+def test_recorded_fixtures_are_complete_and_small():
+    from polyhull.cellfile import load_cell
+    from polyhull.frames import load_frames
+
+    manifest = _manifest()
+    files = sorted(p.name for p in FRAMES_DIR.glob("*.npz"))
+    assert files == sorted(e["file"] for e in manifest["frames"])
+    assert sum((FRAMES_DIR / f).stat().st_size for f in files) < 10e6
+    dtypes = set()
+    for entry in manifest["frames"]:
+        cell = load_cell(FRAMES_DIR / entry["cell"])
+        loaded = load_frames(FRAMES_DIR / entry["file"])
+        assert set(loaded.frames) == {c.name for c in cell.cameras}
+        for cam in cell.cameras:
+            assert loaded.frames[cam.name].shape == cam.shape
+        np.testing.assert_allclose(loaded.q, entry["q"])
+        assert loaded.stamp == entry["stamp"]
+        with np.load(FRAMES_DIR / entry["file"]) as raw:
+            dtypes.add(str(raw[cell.cameras[0].name].dtype))
+    assert dtypes == {"uint16", "float32"}
+    assert len([e for e in manifest["frames"] if e["file"].startswith("small_walk")]) >= 8
+
+
+@pytest.mark.parametrize("name", ["small_walk_000.npz", "small_walk_005.npz", "paper_walk_001.npz"])
+def test_recorded_fixtures_replay_from_the_manifest(name):
+    from polyhull.cellfile import load_cell
+    from polyhull.frames import load_frames
+    from polyhull.person import make_person
+
+    entry = next(e for e in _manifest()["frames"] if e["file"] == name)
+    cell = load_cell(FRAMES_DIR / entry["cell"])
+    persons = [make_person(**{**p, "position": tuple(p["position"])}) for p in entry["persons"]]
+    sim = Simulator(cell)
+    frames = sim.render(
+        entry["q"], targets=persons, seed=entry["seed"], stamp=entry["stamp"],
+        effects=SensorEffects(**entry["effects"]),
+    )
+    recorded = load_frames(FRAMES_DIR / name).frames
+    for cam in cell.cameras:
+        same = frames[cam.name].depth == recorded[cam.name].depth
+        assert same.mean() > 0.999, f"{name} camera {cam.name}: simulator output changed"
+    # the person is in the frames: some camera sees it in front of the empty cell
+    exact = sim.render_exact(entry["q"], targets=persons)
+    empty = sim.render_exact(entry["q"])
+    assert any(np.sum(exact[c.name] < empty[c.name] - 0.05) > 100 for c in cell.cameras)
