@@ -104,22 +104,21 @@ def _stream(seed: int, camera_index: int, effect: int) -> np.random.Generator:
     return np.random.default_rng([seed, camera_index, effect])
 
 
-def _neighbourhood_min_max(depth: ArrayF64) -> tuple[ArrayF64, ArrayF64]:
+def _neighbourhood_min_max(
+    depth: npt.NDArray[np.float32],
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
     """Minimum and maximum of the finite values in each 3 x 3 neighbourhood, (H, W) each.
 
     Non-finite values (no return) are ignored; a neighbourhood with no finite value gets
     NaN.
     """
-    h, w = depth.shape
-    finite = np.where(np.isfinite(depth), depth, np.nan)
+    finite = np.where(np.isfinite(depth), depth, np.float32(np.nan)).astype(np.float32)
     padded = np.pad(finite, 1, mode="constant", constant_values=np.nan)
-    lo = np.full((h, w), np.nan)
-    hi = np.full((h, w), np.nan)
-    for dv in range(3):
-        for du in range(3):
-            window = padded[dv : dv + h, du : du + w]
-            np.fmin(lo, window, out=lo)
-            np.fmax(hi, window, out=hi)
+    # separable: 3-wide along rows, then 3-tall along columns
+    row_lo = np.fmin(np.fmin(padded[:, :-2], padded[:, 1:-1]), padded[:, 2:])  # (H+2, W)
+    row_hi = np.fmax(np.fmax(padded[:, :-2], padded[:, 1:-1]), padded[:, 2:])
+    lo = np.fmin(np.fmin(row_lo[:-2], row_lo[1:-1]), row_lo[2:])
+    hi = np.fmax(np.fmax(row_hi[:-2], row_hi[1:-1]), row_hi[2:])
     return lo, hi
 
 
@@ -144,37 +143,37 @@ def apply_sensor_effects(
     """
     if not (isinstance(seed, int | np.integer) and seed >= 0):
         raise PolyhullError(f"seed must be a non-negative integer, got {seed!r}")
-    out = np.array(depth, dtype=np.float64)
+    out = np.array(depth, dtype=np.float32)
     if out.ndim != 2:
         raise PolyhullError(f"depth of camera '{camera.name}' must be (H, W), got {out.shape}")
     if effects.flying_pixels:
         rng = _stream(int(seed), camera_index, _STREAM_FLYING)
         lo, hi = _neighbourhood_min_max(out)
         with np.errstate(invalid="ignore"):
-            edge = (hi - lo) > effects.flying_jump
-        edge &= np.isfinite(out)
-        chosen = rng.random(out.shape) < effects.flying_share
-        mix = rng.random(out.shape)
-        fly = edge & chosen
-        out[fly] = lo[fly] + mix[fly] * (hi[fly] - lo[fly])
+            edge = np.flatnonzero(((hi - lo) > effects.flying_jump) & np.isfinite(out))
+        fly = edge[rng.random(len(edge)) < effects.flying_share]
+        mix = rng.random(len(fly), dtype=np.float32)
+        flat = out.reshape(-1)
+        lo_f, hi_f = lo.reshape(-1)[fly], hi.reshape(-1)[fly]
+        flat[fly] = lo_f + mix * (hi_f - lo_f)
     if effects.noise and camera.noise > 0.0:
         rng = _stream(int(seed), camera_index, _STREAM_NOISE)
-        standard = rng.standard_normal(out.shape)
-        finite = np.isfinite(out)
-        out[finite] += standard[finite] * camera.noise * out[finite] ** 2
+        standard = rng.standard_normal(out.shape, dtype=np.float32)
+        finite = np.isfinite(out)  # +inf (no return) stays +inf
+        out[finite] += standard[finite] * np.float32(camera.noise) * out[finite] ** 2
     if effects.dropout > 0.0:
         rng = _stream(int(seed), camera_index, _STREAM_DROPOUT)
-        out[rng.random(out.shape) < effects.dropout] = 0.0
+        out[rng.random(out.shape, dtype=np.float32) < effects.dropout] = 0.0
     if effects.out_of_range:
         with np.errstate(invalid="ignore"):
             bad = ~((out >= camera.near) & (out <= camera.far))
         out[bad] = 0.0
     if effects.uint16:
         with np.errstate(invalid="ignore"):
-            millimetres = np.round(out * 1000.0)
+            millimetres = np.round(out.astype(np.float64) * 1000.0)
             ok = np.isfinite(millimetres) & (millimetres > 0) & (millimetres <= 65535)
         return np.where(ok, millimetres, 0.0).astype(np.uint16)
-    return out.astype(np.float32)
+    return out
 
 
 def _load_robot(cell: Cell) -> RobotModel | None:
