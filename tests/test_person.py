@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -98,7 +99,8 @@ def test_sample_points_inside():
     mesh = make_person(1.75, "standing", position=(1.0, 1.0))
     points = sample_points_inside(mesh, 500, seed=3)
     assert points.shape == (500, 3)
-    assert mesh.contains(points).all()
+    # independent of the ray-parity test used for sampling: signed distance, > 0 inside
+    assert (trimesh.proximity.signed_distance(mesh, points[:200]) > -1e-9).all()
     np.testing.assert_array_equal(points, sample_points_inside(mesh, 500, seed=3))
     assert not np.array_equal(points, sample_points_inside(mesh, 500, seed=4))
     # uniform: the share of points above the hips matches the share of volume up there
