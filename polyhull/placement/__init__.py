@@ -1,0 +1,1 @@
+"""Sensor placement quality and optimisation (paper section 4, SPEC section 5)."""

@@ -1,0 +1,554 @@
+"""Quality of a sensor placement: the objectives f1 to f4 and their optimal values.
+
+Paper section 4 (SPEC section 5). With the voxel labels of
+:mod:`polyhull.placement.labels`, every value is a volume in [m^3] (a voxel count times
+the voxel volume), weighted where the objective says so:
+
+- ``f1`` = undetectable volume [m^3];
+- ``f2`` = importance-weighted undetectable volume, ``sum_n w(n) [n undetectable] dV``
+  [m^3 x weight];
+- ``f3 = w1 * changed + w2 * undetectable`` [m^3 x weight];
+- ``f4`` = ``f3`` with the labels of the k-of-n rule (a voxel is target-free only when at
+  least ``k`` cameras say so).
+
+Optimal values (the stopping criteria of paper section 4): ``f1_opt`` = volume inside
+static objects, ``f2_opt`` = its weighted volume, ``f3_opt = f4_opt = w2 * static volume +
+min(w1, w2) * target volume``. They are lower bounds: static voxels are always
+undetectable and target voxels never target-free (see :mod:`~polyhull.placement.labels`).
+
+A placement is scored on several target scenes (:mod:`~polyhull.placement.targets`) and
+every value, f_opt included, is the mean over the scenes.
+
+:class:`PlacementProblem` is the picklable description of what is scored (grid, static
+meshes, target scenes, weights); :func:`evaluate_cameras` scores a set of cameras. The
+ray-casting scene and the voxel indicators are built once per process and cached, so an
+evaluation in a worker process or on a Dask worker only ships the problem and the cameras.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal, NamedTuple
+
+import numpy as np
+import trimesh
+
+from ..camera import Camera
+from ..cell import Cell
+from ..errors import GeometryError, PolyhullError
+from ..raycast import MeshCaster, StaticScene
+from ..typed import ArrayBool, ArrayF32, ArrayF64
+from .labels import (
+    PAPER_GRID,
+    Label,
+    VoxelGrid,
+    free_depth_image,
+    fuse_labels,
+    mesh_mask,
+    project_grid,
+)
+from .targets import TargetScene
+
+__all__ = [
+    "ObjectiveName",
+    "OBJECTIVES",
+    "ImportanceRegion",
+    "Importance",
+    "ObjectiveParams",
+    "Objectives",
+    "MeshArrays",
+    "PlacementProblem",
+    "PreparedProblem",
+    "prepare",
+    "evaluate_cameras",
+    "label_scene",
+]
+
+ObjectiveName = Literal["f1", "f2", "f3", "f4"]
+#: The objective names, in order.
+OBJECTIVES: tuple[ObjectiveName, ...] = ("f1", "f2", "f3", "f4")
+
+
+@dataclass(frozen=True)
+class ImportanceRegion:
+    """An axis-aligned box of the world [m] whose voxels get ``weight`` in f2."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+    weight: float
+
+    def __post_init__(self) -> None:
+        lo = np.asarray(self.lo, dtype=np.float64)
+        hi = np.asarray(self.hi, dtype=np.float64)
+        if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite(lo) & np.isfinite(hi)):
+            raise PolyhullError(
+                f"importance region: lo and hi must be 3 finite numbers [m], got {self.lo!r}, {self.hi!r}"
+            )
+        if not np.all(hi >= lo):
+            raise PolyhullError(f"importance region: hi {hi.tolist()} must be >= lo {lo.tolist()}")
+        if not (np.isfinite(self.weight) and self.weight >= 0):
+            raise PolyhullError(f"importance region: weight must be finite and >= 0, got {self.weight!r}")
+        object.__setattr__(self, "lo", tuple(float(x) for x in lo))
+        object.__setattr__(self, "hi", tuple(float(x) for x in hi))
+        object.__setattr__(self, "weight", float(self.weight))
+
+
+@dataclass(frozen=True, eq=False)
+class Importance:
+    """Importance weights w(n) of the voxels (objective f2).
+
+    Either a per-voxel field, or a default weight overridden by boxes (later regions win
+    where they overlap).
+
+    Attributes:
+        field: Weights of shape ``grid.shape`` or ``(N,)``, finite and >= 0; or None.
+        regions: Boxes with their weight (used when ``field`` is None).
+        default: Weight of the voxels outside every region.
+    """
+
+    field: ArrayF64 | None = None
+    regions: tuple[ImportanceRegion, ...] = ()
+    default: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.field is not None:
+            w = np.array(self.field, dtype=np.float64)
+            if not np.all(np.isfinite(w)) or np.any(w < 0):
+                raise PolyhullError("importance field: weights must be finite and >= 0")
+            w.setflags(write=False)
+            object.__setattr__(self, "field", w)
+            if self.regions:
+                raise PolyhullError("importance: give either a field or regions, not both")
+        if not (np.isfinite(self.default) and self.default >= 0):
+            raise PolyhullError(f"importance default weight must be finite and >= 0, got {self.default!r}")
+        object.__setattr__(self, "regions", tuple(self.regions))
+
+    def weights(self, grid: VoxelGrid) -> ArrayF64:
+        """Weights (N,) of the voxels of ``grid``."""
+        if self.field is not None:
+            if self.field.shape not in (grid.shape, (grid.size,)):
+                raise PolyhullError(
+                    f"importance field has shape {self.field.shape}, expected the grid shape "
+                    f"{grid.shape} or ({grid.size},)"
+                )
+            return np.asarray(self.field, dtype=np.float64).ravel()
+        w = np.full(grid.size, float(self.default))
+        for region in self.regions:
+            w[grid.flat_indices_in_box(np.asarray(region.lo), np.asarray(region.hi))] = region.weight
+        return w
+
+
+@dataclass(frozen=True)
+class ObjectiveParams:
+    """Weights and rules of the objectives.
+
+    Attributes:
+        w1: Weight of the changed volume in f3 and f4.
+        w2: Weight of the undetectable volume in f3 and f4. The default 2 puts the emphasis
+            on not leaving points undetectable (paper section 4, item 3).
+        k: k of the k-of-n rule of f4 (paper section 4, item 4).
+        importance: Voxel weights of f2 (uniform 1 when None, so f2 = f1).
+    """
+
+    w1: float = 1.0
+    w2: float = 2.0
+    k: int = 2
+    importance: Importance | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("w1", "w2"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise PolyhullError(f"objective weight {name} must be finite and >= 0, got {value!r}")
+        if not (isinstance(self.k, int | np.integer) and self.k >= 1):
+            raise PolyhullError(f"k of the k-of-n rule must be an integer >= 1, got {self.k!r}")
+
+
+@dataclass(frozen=True)
+class Objectives:
+    """Objective values of one placement, means over the target scenes.
+
+    Attributes:
+        f1: Undetectable volume [m^3].
+        f2: Importance-weighted undetectable volume [m^3 x weight].
+        f3: ``w1 * changed + w2 * undetectable`` [m^3 x weight].
+        f4: f3 under the k-of-n rule [m^3 x weight].
+        free: Target-free volume [m^3] (plain rule).
+        changed: Changed volume [m^3] (plain rule).
+        undetectable: Undetectable volume [m^3] (plain rule), equal to f1.
+        free_k: Target-free volume [m^3] under the k-of-n rule.
+        changed_k: Changed volume [m^3] under the k-of-n rule.
+        undetectable_k: Undetectable volume [m^3] under the k-of-n rule.
+    """
+
+    f1: float
+    f2: float
+    f3: float
+    f4: float
+    free: float = 0.0
+    changed: float = 0.0
+    undetectable: float = 0.0
+    free_k: float = 0.0
+    changed_k: float = 0.0
+    undetectable_k: float = 0.0
+
+    def __getitem__(self, name: str) -> float:
+        if name not in OBJECTIVES:
+            raise PolyhullError(f"unknown objective {name!r}; choose one of {list(OBJECTIVES)}")
+        return float(getattr(self, name))
+
+    def as_dict(self) -> dict[str, float]:
+        """All values by name."""
+        return {k: float(v) for k, v in self.__dict__.items()}
+
+
+class MeshArrays(NamedTuple):
+    """A triangle mesh as plain arrays (cheap to pickle).
+
+    Attributes:
+        vertices: (V, 3) float64 vertices [m], world frame.
+        faces: (F, 3) int64 vertex indices.
+    """
+
+    vertices: ArrayF64
+    faces: np.ndarray
+
+    @classmethod
+    def of(cls, mesh: trimesh.Trimesh) -> MeshArrays:
+        """The arrays of a trimesh."""
+        return cls(
+            np.ascontiguousarray(mesh.vertices, dtype=np.float64),
+            np.ascontiguousarray(mesh.faces, dtype=np.int64),
+        )
+
+    def trimesh(self) -> trimesh.Trimesh:
+        """The mesh as a trimesh (not processed)."""
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+
+@dataclass(frozen=True, eq=False)
+class PlacementProblem:
+    """What a placement is scored on: a picklable value shipped to every evaluation.
+
+    Attributes:
+        grid: The voxel grid over Z.
+        floor_z: Height of the floor plane [m] (rendered into the reference).
+        static_meshes: Closed static obstacles [m] (reference scene and the static
+            indicator delta_s).
+        target_scenes: Per scene, its closed target meshes [m]; an empty tuple scores one
+            scene without targets.
+        params: Weights and rules of the objectives.
+        step: Pixel stride of the rendered depth images (1: every pixel, as the paper).
+        key: Content hash, the key of the per-process cache (computed).
+    """
+
+    grid: VoxelGrid
+    floor_z: float
+    static_meshes: tuple[MeshArrays, ...] = ()
+    target_scenes: tuple[tuple[MeshArrays, ...], ...] = ()
+    params: ObjectiveParams = ObjectiveParams()
+    step: int = 1
+    key: str = field(init=False, default="")
+
+    def __post_init__(self) -> None:
+        if not np.isfinite(self.floor_z):
+            raise GeometryError(f"floor_z must be finite [m], got {self.floor_z!r}")
+        if not (isinstance(self.step, int | np.integer) and self.step >= 1):
+            raise GeometryError(f"pixel step must be a positive integer [px], got {self.step!r}")
+        h = hashlib.sha1()
+        h.update(repr((self.grid.lo, self.grid.hi, self.grid.shape, float(self.floor_z))).encode())
+        h.update(repr((self.params.w1, self.params.w2, self.params.k, int(self.step))).encode())
+        imp = self.params.importance
+        if imp is not None:
+            h.update(repr((imp.regions, imp.default)).encode())
+            if imp.field is not None:
+                h.update(np.ascontiguousarray(imp.field).tobytes())
+        for group in ((self.static_meshes,), self.target_scenes):
+            h.update(b"|")
+            for meshes in group:
+                for m in meshes:
+                    h.update(np.ascontiguousarray(m.vertices).tobytes())
+                    h.update(np.ascontiguousarray(m.faces).tobytes())
+                h.update(b";")
+        object.__setattr__(self, "key", h.hexdigest())
+
+    @classmethod
+    def from_cell(
+        cls,
+        cell: Cell,
+        scenes: Sequence[TargetScene] = (),
+        grid_shape: Sequence[int] = PAPER_GRID,
+        params: ObjectiveParams | None = None,
+        step: int = 1,
+        extra_static: Sequence[trimesh.Trimesh] = (),
+    ) -> PlacementProblem:
+        """The problem of a cell: its zone, floor and obstacles, with target scenes.
+
+        Args:
+            cell: The work cell (its cameras are not part of the problem).
+            scenes: Target scenes (:func:`~polyhull.placement.targets.sample_target_scenes`).
+            grid_shape: Voxel counts over Z (default: the paper's 126 x 90 x 66).
+            params: Weights and rules; defaults to :class:`ObjectiveParams` with the cell's
+                k-of-n when it is above 1.
+            step: Pixel stride of the rendered depth images.
+            extra_static: Further closed static occluders [m] (e.g. the robot at its default
+                configuration); the reference of SPEC section 2 holds only the obstacles.
+        """
+        if params is None:
+            k = cell.reconstruction.k_of_n
+            params = ObjectiveParams(k=k if k > 1 else 2)
+        statics = [MeshArrays.of(o.mesh) for o in cell.obstacles]
+        statics += [MeshArrays.of(m) for m in extra_static]
+        return cls(
+            grid=VoxelGrid.from_zone(cell.zone, grid_shape),
+            floor_z=cell.zone.floor_z,
+            static_meshes=tuple(statics),
+            target_scenes=tuple(tuple(MeshArrays.of(m) for m in s.meshes) for s in scenes),
+            params=params,
+            step=step,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PreparedProblem:
+    """The per-process state of a :class:`PlacementProblem` (built by :func:`prepare`).
+
+    Attributes:
+        problem: The problem.
+        static: Ray-casting scene of the floor and the static meshes.
+        static_mask: (N,) delta_s, voxels inside static meshes.
+        target_masks: Per scene (N,) delta_t, voxels inside targets (and not static).
+        target_casters: Per scene, the ray caster of its targets.
+        target_corners: Per scene, (8, 3) corners of the targets' bounding box [m].
+        weights: (N,) importance weights of f2.
+        optimum: The optimal values f_opt (means over the scenes).
+    """
+
+    problem: PlacementProblem
+    static: StaticScene
+    static_mask: ArrayBool
+    target_masks: tuple[ArrayBool, ...]
+    target_casters: tuple[MeshCaster, ...]
+    target_corners: tuple[ArrayF64, ...]
+    weights: ArrayF64
+    optimum: Objectives
+
+
+_CACHE: OrderedDict[str, PreparedProblem] = OrderedDict()
+_CACHE_LOCK = threading.Lock()
+_CACHE_SIZE = 4
+
+
+def prepare(problem: PlacementProblem) -> PreparedProblem:
+    """The prepared state of ``problem``, built once per process and cached by its key."""
+    with _CACHE_LOCK:
+        cached = _CACHE.get(problem.key)
+        if cached is not None:
+            _CACHE.move_to_end(problem.key)
+            return cached
+        prepared = _build(problem)
+        _CACHE[problem.key] = prepared
+        while len(_CACHE) > _CACHE_SIZE:
+            _CACHE.popitem(last=False)
+        return prepared
+
+
+def _build(problem: PlacementProblem) -> PreparedProblem:
+    grid = problem.grid
+    statics = [m.trimesh() for m in problem.static_meshes]
+    static_mask = mesh_mask(grid, statics)
+    scenes = problem.target_scenes or ((),)
+    target_masks = []
+    casters = []
+    corners = []
+    for scene in scenes:
+        meshes = [m.trimesh() for m in scene]
+        target_masks.append(mesh_mask(grid, meshes) & ~static_mask)
+        casters.append(MeshCaster(meshes))
+        if meshes:
+            lo = np.min([m.bounds[0] for m in meshes], axis=0)
+            hi = np.max([m.bounds[1] for m in meshes], axis=0)
+            corners.append(
+                np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            )
+        else:
+            corners.append(np.zeros((0, 3)))
+    params = problem.params
+    importance = params.importance or Importance()
+    weights = importance.weights(grid)
+    vv = grid.voxel_volume
+    n_static = float(np.count_nonzero(static_mask))
+    n_target = float(np.mean([np.count_nonzero(t) for t in target_masks]))
+    f3_opt = (params.w2 * n_static + min(params.w1, params.w2) * n_target) * vv
+    optimum = Objectives(
+        f1=n_static * vv,
+        f2=float(np.sum(weights[static_mask])) * vv,
+        f3=f3_opt,
+        f4=f3_opt,
+    )
+    return PreparedProblem(
+        problem=problem,
+        static=StaticScene(statics, problem.floor_z),
+        static_mask=static_mask,
+        target_masks=tuple(target_masks),
+        target_casters=tuple(casters),
+        target_corners=tuple(corners),
+        weights=weights,
+        optimum=optimum,
+    )
+
+
+def _render_targets_roi(
+    camera: Camera, caster: MeshCaster, corners: ArrayF64, step: int, shape: tuple[int, int]
+) -> tuple[tuple[slice, slice], ArrayF32] | None:
+    """z-depth [m] of the targets over the image rectangle their bounding box projects to.
+
+    Returns None when the targets cannot be seen; otherwise the (rows, cols) slices of the
+    rendered image and the depth over them (+inf where no target is hit).
+    """
+    if caster.is_empty or len(corners) == 0:
+        return None
+    k = camera.intrinsics
+    uv, z = camera.project(corners)
+    h, w = shape
+    if np.all(z <= 0):
+        return None
+    if np.any(z <= 1e-6):
+        rows, cols = slice(0, h), slice(0, w)
+    else:
+        u0 = int(np.floor(uv[:, 0].min() / step)) - 1
+        u1 = int(np.ceil(uv[:, 0].max() / step)) + 2
+        v0 = int(np.floor(uv[:, 1].min() / step)) - 1
+        v1 = int(np.ceil(uv[:, 1].max() / step)) + 2
+        u0, u1 = max(u0, 0), min(u1, w)
+        v0, v1 = max(v0, 0), min(v1, h)
+        if u0 >= u1 or v0 >= v1:
+            return None
+        rows, cols = slice(v0, v1), slice(u0, u1)
+    u = np.arange(cols.start, cols.stop, dtype=np.float64) * step
+    v = np.arange(rows.start, rows.stop, dtype=np.float64) * step
+    uu, vv = np.meshgrid((u - k.cx) / k.fx, (v - k.cy) / k.fy)
+    rays_camera = np.stack([uu, vv, np.ones_like(uu)], axis=-1)
+    directions = rays_camera.reshape(-1, 3) @ camera.T_world_camera[:3, :3].T
+    t = caster.first_hit(np.asarray(camera.center, dtype=np.float64), directions)
+    return (rows, cols), t.reshape(uu.shape).astype(np.float32)
+
+
+class _SceneVotes(NamedTuple):
+    """Votes of all cameras for all scenes (internal)."""
+
+    base_count: np.ndarray  # (N,) int16 cameras calling each voxel free without targets
+    correction: np.ndarray  # (S, N) int16 change of that count per scene
+    changed: np.ndarray  # (S, N) bool some camera calls the voxel changed
+
+
+def _votes(prep: PreparedProblem, cameras: Sequence[Camera]) -> _SceneVotes:
+    problem = prep.problem
+    grid = problem.grid
+    step = problem.step
+    n_scenes = len(prep.target_masks)
+    base_count = np.zeros(grid.size, dtype=np.int16)
+    correction = np.zeros((n_scenes, grid.size), dtype=np.int16)
+    changed = np.zeros((n_scenes, grid.size), dtype=bool)
+    for camera in cameras:
+        proj = project_grid(camera, grid, step)
+        B = prep.static.render(camera, step=step)
+        f_ref, _ = free_depth_image(camera, B, B)
+        visible = proj.pixel >= 0
+        pix = np.where(visible, proj.pixel, 0)
+        base_free = visible & (proj.depth < f_ref.ravel()[pix])
+        base_count += base_free
+        hit_union = np.zeros(B.shape, dtype=bool)
+        per_scene: list[tuple[int, ArrayF32, ArrayBool]] = []
+        for s in range(n_scenes):
+            roi = _render_targets_roi(
+                camera, prep.target_casters[s], prep.target_corners[s], step, B.shape
+            )
+            if roi is None:
+                continue
+            window, T = roi
+            B_roi = B[window]
+            D_roi = np.minimum(B_roi, T)
+            hit = D_roi < B_roi
+            if not np.any(hit):
+                continue
+            f_roi, ch_roi = free_depth_image(camera, B_roi, D_roi)
+            f_full = f_ref.copy()
+            f_full[window] = f_roi
+            ch_full = np.zeros(B.shape, dtype=bool)
+            ch_full[window] = ch_roi
+            hit_union[window] |= hit
+            per_scene.append((s, f_full, ch_full))
+        if not per_scene:
+            continue
+        affected = np.flatnonzero(visible & hit_union.ravel()[pix])
+        if len(affected) == 0:
+            continue
+        pa = pix[affected]
+        za = proj.depth[affected]
+        base_a = base_free[affected]
+        for s, f_full, ch_full in per_scene:
+            free_s = za < f_full.ravel()[pa]
+            correction[s, affected] += free_s.astype(np.int16) - base_a
+            changed[s, affected] |= ~free_s & ch_full.ravel()[pa]
+    return _SceneVotes(base_count, correction, changed)
+
+
+def label_scene(
+    problem: PlacementProblem, cameras: Sequence[Camera], scene: int = 0, k: int = 1
+) -> np.ndarray:
+    """Voxel labels (N,) int8 of one target scene of ``problem`` (:class:`Label` values).
+
+    Args:
+        problem: The placement problem.
+        cameras: The cameras.
+        scene: Index of the target scene.
+        k: k of the k-of-n rule (1: the plain rule).
+    """
+    prep = prepare(problem)
+    if not 0 <= scene < len(prep.target_masks):
+        raise PolyhullError(f"scene index {scene} out of range [0, {len(prep.target_masks)})")
+    votes = _votes(prep, cameras)
+    count = votes.base_count + votes.correction[scene]
+    return fuse_labels(count, votes.changed[scene], k, prep.static_mask, prep.target_masks[scene])
+
+
+def evaluate_cameras(problem: PlacementProblem, cameras: Sequence[Camera]) -> Objectives:
+    """Score a set of cameras: f1 to f4 and the label volumes, means over the scenes.
+
+    Args:
+        problem: What the placement is scored on.
+        cameras: The cameras (any number; none leaves all of Z undetectable).
+
+    Returns:
+        The objective values (see :class:`Objectives` for units).
+    """
+    prep = prepare(problem)
+    params = problem.params
+    vv = problem.grid.voxel_volume
+    votes = _votes(prep, cameras)
+    totals = np.zeros(10)
+    for s, target_mask in enumerate(prep.target_masks):
+        count = votes.base_count + votes.correction[s]
+        plain = fuse_labels(count, votes.changed[s], 1, prep.static_mask, target_mask)
+        strict = fuse_labels(count, votes.changed[s], params.k, prep.static_mask, target_mask)
+        n = [np.count_nonzero(plain == lab) for lab in Label]
+        nk = [np.count_nonzero(strict == lab) for lab in Label]
+        undetectable = plain == Label.UNDETECTABLE
+        totals += np.array(
+            [
+                n[Label.UNDETECTABLE],
+                float(np.sum(prep.weights[undetectable])),
+                params.w1 * n[Label.CHANGED] + params.w2 * n[Label.UNDETECTABLE],
+                params.w1 * nk[Label.CHANGED] + params.w2 * nk[Label.UNDETECTABLE],
+                *n,
+                *nk,
+            ],
+            dtype=np.float64,
+        )
+    mean = totals * vv / len(prep.target_masks)
+    return Objectives(*(float(x) for x in mean))
