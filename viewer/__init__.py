@@ -1,0 +1,81 @@
+"""polyhull_viewer: look at cells, depth frames and verdicts in meshcat, live or as HTML.
+
+Draw into your own meshcat visualizer from your controller code::
+
+    import meshcat
+    import polyhull_viewer as pv
+
+    vis = meshcat.Visualizer()
+    pv.draw_cell(vis, cell, q)              # zone, obstacles, robot, camera frustums
+    verdict = monitor.step(frames, q, stamp=t)
+    pv.draw_verdict(vis, verdict)           # C, M, R, removed parts, distance segment
+
+or write a standalone HTML file that opens with no server::
+
+    vis = pv.StaticVisualizer()
+    pv.draw_scene(vis, cell, frames=frames, verdict=verdict)
+    pv.write_html(vis, "cell.html")
+
+The core package ``polyhull`` never imports this one. It needs the ``viewer`` extra
+(``pip install 'polyhull[viewer]'``).
+"""
+
+from __future__ import annotations
+
+from polyhull.errors import MissingExtraError
+
+try:
+    import meshcat as _meshcat  # noqa: F401
+    import umsgpack as _umsgpack  # noqa: F401
+except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
+    raise MissingExtraError("the viewer", "viewer") from _exc
+
+from ._colors import STYLE as STYLE
+from ._colors import Style as Style
+from ._colors import depth_colors as depth_colors
+from ._colors import speed_color as speed_color
+from ._colors import speed_color_hex as speed_color_hex
+from ._demo import DemoRecorder as DemoRecorder
+from ._geometry import TextLabel as TextLabel
+from ._geometry import feature_edges as feature_edges
+from ._geometry import frame_points as frame_points
+from ._html import StaticVisualizer as StaticVisualizer
+from ._html import VisualizerLike as VisualizerLike
+from ._html import write_html as write_html
+from ._scene import DEFAULT_PREFIX as DEFAULT_PREFIX
+from ._scene import RobotLike as RobotLike
+from ._scene import VerdictLike as VerdictLike
+from ._scene import draw_camera_regions as draw_camera_regions
+from ._scene import draw_cell as draw_cell
+from ._scene import draw_frames as draw_frames
+from ._scene import draw_robot as draw_robot
+from ._scene import draw_scene as draw_scene
+from ._scene import draw_verdict as draw_verdict
+from ._scene import set_view as set_view
+from ._server import LiveViewer as LiveViewer
+
+__all__ = [
+    "DEFAULT_PREFIX",
+    "STYLE",
+    "DemoRecorder",
+    "LiveViewer",
+    "RobotLike",
+    "StaticVisualizer",
+    "Style",
+    "TextLabel",
+    "VerdictLike",
+    "VisualizerLike",
+    "depth_colors",
+    "draw_camera_regions",
+    "draw_cell",
+    "draw_frames",
+    "draw_robot",
+    "draw_scene",
+    "draw_verdict",
+    "feature_edges",
+    "frame_points",
+    "set_view",
+    "speed_color",
+    "speed_color_hex",
+    "write_html",
+]
