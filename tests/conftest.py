@@ -1,0 +1,66 @@
+"""Shared fixtures of the reconstruction engine tests: the small cell, its simulator and monitor.
+
+The monitor and simulator are session-scoped (a Monitor takes ~0.5 s to build); tests that
+step a monitor must call ``monitor.reset()`` first, which the ``fresh_monitor`` fixture does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polyhull.camera import Camera, Intrinsics, look_at_rotation
+from polyhull.cell import Cell
+from polyhull.cellfile import load_cell
+from polyhull.monitor import Monitor
+from polyhull.simulator import Simulator
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURES = ROOT / "fixtures"
+SMALL_CELL = FIXTURES / "cells" / "small_cell.toml"
+
+
+@pytest.fixture(scope="session")
+def small_cell() -> Cell:
+    """The two-camera small cell of ``fixtures/cells/small_cell.toml``."""
+    return load_cell(SMALL_CELL)
+
+
+@pytest.fixture(scope="session")
+def small_sim(small_cell: Cell) -> Simulator:
+    """A simulator of the small cell (default sensor effects)."""
+    return Simulator(small_cell)
+
+
+@pytest.fixture(scope="session")
+def small_monitor(small_cell: Cell, small_sim: Simulator) -> Monitor:
+    """A monitor of the small cell, with the simulator's reference depth."""
+    return Monitor(small_cell, references=small_sim.reference())
+
+
+@pytest.fixture()
+def fresh_monitor(small_monitor: Monitor) -> Monitor:
+    """The session monitor with its faults and history cleared."""
+    small_monitor.reset()
+    return small_monitor
+
+
+def make_camera(
+    width: int = 64,
+    height: int = 48,
+    kind: str = "depth",
+    position: tuple[float, float, float] = (0.3, 0.2, 3.0),
+    target: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    near: float = 0.3,
+    far: float = 6.0,
+    noise: float = 0.003,
+) -> Camera:
+    """A small test camera looking from ``position`` at ``target`` [m]."""
+    f = 0.8 * width
+    k = Intrinsics(width=width, height=height, fx=f, fy=f * 1.05, cx=(width - 1) / 2, cy=(height - 1) / 2)
+    T = np.eye(4)
+    T[:3, :3] = look_at_rotation(np.array(position, float), np.array(target, float))
+    T[:3, 3] = position
+    return Camera(name="test", kind=kind, intrinsics=k, T_world_camera=T, near=near, far=far, noise=noise)  # type: ignore[arg-type]
