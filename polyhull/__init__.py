@@ -6,6 +6,8 @@ solids, measures the distance to the robot and derives a safe robot speed (ISO/T
 """
 
 from .camera import Camera as Camera
+from .cellfile import default_cell_path as default_cell_path
+from .cellfile import load_cell as load_cell
 from .camera import Intrinsics as Intrinsics
 from .cell import Cell as Cell
 from .cell import Obstacle as Obstacle
@@ -24,11 +26,41 @@ from .errors import RobotError as RobotError
 from .frames import DepthFrame as DepthFrame
 from .frames import load_frames as load_frames
 from .frames import save_frames as save_frames
+from .intrinsics_io import read_intrinsics_file as read_intrinsics_file
+from .monitor import Monitor as Monitor
+from .monitor import Verdict as Verdict
+from .person import PersonTrack as PersonTrack
+from .person import make_person as make_person
+from .person import sample_points_inside as sample_points_inside
+from .plausibility import RemovedComponent as RemovedComponent
+from .raycast import render_depth as render_depth
+from .raycast import render_reference as render_reference
+from .robot import Robot as Robot
+from .simulator import SensorEffects as SensorEffects
+from .simulator import Simulator as Simulator
+from .speed import SpeedDecision as SpeedDecision
+from .speed import decide_speed as decide_speed
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Camera",
+    "Monitor",
+    "PersonTrack",
+    "RemovedComponent",
+    "Robot",
+    "SensorEffects",
+    "Simulator",
+    "SpeedDecision",
+    "Verdict",
+    "decide_speed",
+    "default_cell_path",
+    "load_cell",
+    "make_person",
+    "read_intrinsics_file",
+    "render_depth",
+    "render_reference",
+    "sample_points_inside",
     "Cell",
     "CameraError",
     "CellError",
