@@ -1,0 +1,190 @@
+"""Per-camera free depth and free regions F(i): golden values, conservativeness, oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from conftest import make_camera
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from polyhull.regions import (
+    CameraStatic,
+    block_min,
+    free_depth,
+    free_region_from_blocks,
+    free_region_from_depth,
+)
+
+
+def _mesh(m) -> trimesh.Trimesh:  # noqa: ANN001 - manifold3d Manifold
+    mesh = m.to_mesh64()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), process=False)
+
+
+def test_free_depth_golden_depth_camera() -> None:
+    cam = make_camera(width=8, height=1, near=0.3, far=6.0, noise=0.003)
+    B = np.array([[3.0, 3.0, 3.0, 3.0, 3.0, 3.0, np.inf, 3.0]])
+    D = np.array([[2.0, 4.0, 0.0, np.nan, -np.inf, np.inf, np.inf, 7.0]])
+    f = free_depth(cam, D, B)
+    tau = lambda z: max(3 * 0.003 * z * z, 0.01)  # noqa: E731
+    expected = [
+        2.0 - tau(2.0),  # valid, nearer than the background
+        3.0 - tau(4.0),  # valid, beyond the background: min(D, B) - tau(D)
+        0.3,  # 0: unknown -> near
+        0.3,  # NaN -> near
+        0.3,  # -inf: too close -> near
+        3.0 - tau(6.0),  # +inf: no return -> min(far, B) - tau(far)
+        6.0 - tau(6.0),  # +inf, no background -> far - tau(far)
+        0.3,  # beyond the rated range -> near
+    ]
+    np.testing.assert_allclose(f[0], expected, rtol=0, atol=1e-12)
+
+
+def test_free_depth_below_near_is_near() -> None:
+    cam = make_camera(width=2, height=1, near=0.3)
+    f = free_depth(cam, np.array([[0.1, 0.31]]), np.array([[2.0, 2.0]]))
+    assert f[0, 0] == 0.3
+    assert f[0, 1] == 0.3  # 0.31 - 0.01 is clipped to near
+
+
+def test_free_depth_golden_color_camera() -> None:
+    cam = make_camera(width=3, height=1, kind="color", noise=0.003)
+    B = np.array([[3.0, 3.0, 3.0]])
+    tau_b = max(3 * 0.003 * 9.0, 0.01)
+    D = np.array([[2.0, 3.0, 0.0]])  # changed, unchanged, unknown
+    f = free_depth(cam, D, B)
+    np.testing.assert_allclose(f[0], [0.3, 3.0 - tau_b, 0.3], atol=1e-12)
+
+
+@settings(max_examples=50, deadline=None)
+@given(
+    values=hnp.arrays(np.float64, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=20), elements=st.floats(-10, 10)),
+    block=st.integers(1, 7),
+)
+def test_block_min_against_loop(values: np.ndarray, block: int) -> None:
+    got = block_min(values, block)
+    H, W = values.shape
+    for r in range(got.shape[0]):
+        for c in range(got.shape[1]):
+            assert got[r, c] == values[r * block : (r + 1) * block, c * block : (c + 1) * block].min()
+    assert got.shape == (-(-H // block), -(-W // block))
+
+
+def _reference(cam) -> np.ndarray:  # noqa: ANN001
+    """A floor at z = 0 seen by ``cam`` plus a box-like step; +inf in one corner."""
+    rays = cam.pixel_rays()
+    R = cam.T_world_camera[:3, :3]
+    dirs_w = rays @ R.T
+    z0 = cam.center[2]
+    B = -z0 / dirs_w[..., 2]  # z-depth along unit-z rays to the plane z = 0
+    B = np.where(B > 0, B, np.inf)
+    B[5:12, 10:20] -= 0.8  # a static object
+    B[:3, :4] = np.inf  # no return
+    B[-3:, -5:] = 7.5  # beyond the rated range
+    return B
+
+
+_SPECIAL = st.sampled_from([0.0, np.nan, np.inf, -np.inf, 0.1, 9.0])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**31 - 1),
+    block=st.sampled_from([1, 4, 5, 8]),
+    kind=st.sampled_from(["depth", "color"]),
+    special=st.lists(_SPECIAL, min_size=0, max_size=30),
+    spread=st.floats(0.0, 1.0),
+)
+def test_static_split_never_above_exact_block_min(
+    seed: int, block: int, kind: str, special: list[float], spread: float
+) -> None:
+    cam = make_camera(width=40, height=30, kind=kind)
+    B = _reference(cam)
+    static = CameraStatic(cam, B, block)
+    rng = np.random.default_rng(seed)
+    D = np.where(np.isfinite(B), B, 3.0) + rng.normal(0.0, 0.01 + 0.3 * spread * rng.uniform(), size=B.shape)
+    # Most pixels consistent with the background (noise), some a person in front.
+    keep = rng.uniform(size=B.shape) < 0.8
+    D = np.where(keep, np.where(np.isfinite(B), B + rng.normal(0, 0.003, B.shape), np.inf), D)
+    idx = rng.integers(0, B.size, size=len(special))
+    D.ravel()[idx] = special
+    D = D.astype(np.float32)
+    fb, dirty, _ = static.free_blocks(D)
+    exact = block_min(free_depth(cam, D.astype(np.float64), B), block)
+    assert fb.shape == exact.shape
+    assert np.all(fb <= exact + 1e-9), np.max(fb - exact)
+
+
+def test_static_split_clean_frame_reuses_static_region() -> None:
+    cam = make_camera(width=40, height=30)
+    B = _reference(cam)
+    D = np.where(np.isfinite(B) & (B <= cam.far), B, np.inf).astype(np.float32)
+    static = CameraStatic(cam, B, 4)
+    free, info = static.free_region(D)
+    assert free is static.free_static
+    assert info.dirty_blocks == 0
+    D2 = D.copy()
+    D2[10:14, 20:24] = 1.0  # something appeared
+    fb, dirty, info2 = static.free_blocks(D2)
+    assert dirty[2:4, 5:6].all() and info2.dirty_blocks == int(dirty.sum()) >= 1
+
+
+@pytest.mark.parametrize("f", [0.8, 2.0, 5.5])
+def test_constant_free_depth_volume_is_frustum_slab(f: float) -> None:
+    cam = make_camera(width=64, height=48, near=0.3, far=6.0)
+    k = cam.intrinsics
+    region = free_region_from_blocks(cam, np.full((6, 8), f), 8)
+    expected = k.width * k.height / (k.fx * k.fy) * (f**3 - cam.near**3) / 3.0
+    assert region.volume() == pytest.approx(expected, rel=1e-9)
+    # nothing free -> empty
+    assert free_region_from_blocks(cam, np.full((6, 8), cam.near), 8).is_empty()
+
+
+def test_free_depth_beyond_far_is_cut() -> None:
+    cam = make_camera(width=16, height=16, far=6.0)
+    k = cam.intrinsics
+    region = free_region_from_blocks(cam, np.full((2, 2), 50.0), 8)
+    expected = k.width * k.height / (k.fx * k.fy) * (cam.far**3 - cam.near**3) / 3.0
+    assert region.volume() == pytest.approx(expected, rel=1e-9)
+
+
+@settings(max_examples=8, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), block=st.sampled_from([1, 3, 8]))
+def test_free_region_point_oracle(seed: int, block: int) -> None:
+    """F(i) never claims free what the exact per-pixel free depth does not."""
+    cam = make_camera(width=40, height=30, near=0.3, far=6.0)
+    rng = np.random.default_rng(seed)
+    # A smooth background with blobs of near depth and invalid pixels.
+    vv, uu = np.mgrid[0 : cam.shape[0], 0 : cam.shape[1]]
+    phase = rng.uniform(0, 2 * np.pi, size=2)
+    D = rng.uniform(2.0, 4.5) + 0.5 * np.sin(uu / 5.0 + phase[0]) * np.cos(vv / 7.0 + phase[1])
+    for _ in range(3):
+        r, c = rng.integers(0, 30), rng.integers(0, 40)
+        D[r : r + 6, c : c + 6] = rng.uniform(0.5, 2.0)
+    D[rng.uniform(size=D.shape) < 0.005] = 0.0
+    B = np.full(cam.shape, 5.0)
+    f_exact = free_depth(cam, D, B)
+    region = free_region_from_depth(cam, f_exact, block)
+    assert not region.is_empty()
+    mesh = _mesh(region)
+    # Sample points uniformly in the frustum's image-space box (u, v, z).
+    n = 6000
+    uv = rng.uniform([-0.5, -0.5], [cam.intrinsics.width - 0.5, cam.intrinsics.height - 0.5], size=(n, 2))
+    z = rng.uniform(cam.near, cam.far, size=n)
+    pts = cam.unproject(uv, z)
+    inside = mesh.contains(pts)
+    assert inside.sum() > 100
+    # The point's pixel: nearest centre (boundary points may go to either side).
+    u_p, _ = cam.project(pts)
+    ui = np.clip(np.floor(u_p[:, 0] + 0.5).astype(int), 0, cam.intrinsics.width - 1)
+    vi = np.clip(np.floor(u_p[:, 1] + 0.5).astype(int), 0, cam.intrinsics.height - 1)
+    z_ok = z <= f_exact[vi, ui] + 1e-6
+    misses = inside & ~z_ok
+    assert not misses.any(), f"{misses.sum()} points claimed free beyond the exact free depth"
+    # Loose tightness for block 1 (corners take the minimum of their four pixels, so each
+    # invalid pixel removes its neighbourhood): at least half of the free points are kept.
+    if block == 1:
+        assert inside.sum() >= 0.5 * z_ok.sum()
