@@ -60,7 +60,7 @@ from __future__ import annotations
 import hashlib
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -197,7 +197,8 @@ class PlausibilityResult:
 
     Attributes:
         region: R3 (R2 itself when nothing was removed).
-        kept: The components of R3.
+        kept: The pieces of R3 (``decompose`` pieces; pieces touching at an edge or a
+            vertex are listed apart).
         removed: The removed components, each with its rule.
     """
 
@@ -276,21 +277,60 @@ def _geometry_key(m: m3.Manifold, extra: float) -> bytes:
 
 
 class _Component:
-    """A component with its cheap properties computed once (bbox, volume, vertices)."""
+    """A component with its cheap properties computed once (bbox, volume, mesh arrays)."""
 
-    __slots__ = ("manifold", "bbox", "volume", "_vertices")
+    __slots__ = (
+        "manifold", "bbox", "volume", "_vertices", "_triangles", "_triangle_boxes", "_hull_planes"
+    )
 
     def __init__(self, manifold: m3.Manifold, volume: float | None = None) -> None:
         self.manifold = manifold
         self.bbox = _bbox(manifold)
         self.volume = float(manifold.volume()) if volume is None else volume
         self._vertices: ArrayF64 | None = None
+        self._triangles: ArrayF64 | None = None
+        self._triangle_boxes: ArrayF64 | None = None
+        self._hull_planes: ArrayF64 | None = None
+
+    def _load_mesh(self) -> None:
+        mesh = self.manifold.to_mesh64()
+        verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+        tris = np.asarray(mesh.tri_verts, dtype=np.int64)
+        corners = verts[tris]  # (M, 3, 3)
+        self._vertices = verts
+        self._triangles = corners
+        self._triangle_boxes = np.asfortranarray(np.hstack([corners.min(axis=1), corners.max(axis=1)]))
 
     @property
     def vertices(self) -> ArrayF64:
+        """(N, 3) vertex positions [m]."""
         if self._vertices is None:
-            self._vertices = _vertices(self.manifold)
+            self._load_mesh()
+        assert self._vertices is not None
         return self._vertices
+
+    @property
+    def triangles(self) -> ArrayF64:
+        """(M, 3, 3) corners of every triangle [m]."""
+        if self._triangles is None:
+            self._load_mesh()
+        assert self._triangles is not None
+        return self._triangles
+
+    @property
+    def hull_planes(self) -> ArrayF64:
+        """(F, 4) face planes (n, d) of the convex hull, n . x <= d inside."""
+        if self._hull_planes is None:
+            self._hull_planes = _face_planes(self.manifold.hull())
+        return self._hull_planes
+
+    @property
+    def triangle_boxes(self) -> ArrayF64:
+        """(M, 6) bounding box of every triangle [m]."""
+        if self._triangle_boxes is None:
+            self._load_mesh()
+        assert self._triangle_boxes is not None
+        return self._triangle_boxes
 
 
 def _as_component(c: m3.Manifold | _Component) -> _Component:
@@ -592,21 +632,166 @@ _RULES: dict[str, Callable[[_Component, PlausibilityContext], bool]] = {
 
 # --------------------------------------------------------------------------- components
 
+def _touch(a: _Component, b: _Component) -> bool:
+    """True if two disjoint pieces are at most TOUCH_TOLERANCE apart.
 
-def _components(region: m3.Manifold) -> list[_Component]:
-    """The pieces of ``region`` merged when they touch (see the module docstring)."""
-    pieces = [_Component(p) for p in region.decompose()]
-    pieces = [p for p in pieces if not p.manifold.is_empty()]
-    n = len(pieces)
-    if n <= 1:
-        return pieces
-    boxes = np.array([p.bbox for p in pieces])  # (n, 6)
+    Exact up to rounding: the distance between their surfaces is the least distance between
+    a pair of triangles, computed for the pairs whose boxes come within the tolerance.
+    """
     tol = TOUCH_TOLERANCE
-    overlap = np.all(
-        (boxes[:, None, :3] <= boxes[None, :, 3:] + tol)
-        & (boxes[None, :, :3] <= boxes[:, None, 3:] + tol),
-        axis=2,
+    if _bbox_gap(a.bbox, b.bbox) > tol:
+        return False
+    # Keep the triangles of each piece that come near the other piece's box.
+    near_a = _boxes_meet(a.triangle_boxes, b.bbox[:3] - tol, b.bbox[3:] + tol)
+    near_b = _boxes_meet(b.triangle_boxes, a.bbox[:3] - tol, a.bbox[3:] + tol)
+    if not (near_a.any() and near_b.any()):
+        return False
+    # Of the bigger piece, keep the triangles that no face plane of the smaller piece's hull
+    # separates from it by more than the tolerance.
+    if a.manifold.num_tri() < b.manifold.num_tri():
+        near_b[near_b] = ~_separated_by_planes(b.triangles[near_b], a.hull_planes, tol)
+    else:
+        near_a[near_a] = ~_separated_by_planes(a.triangles[near_a], b.hull_planes, tol)
+    if not (near_a.any() and near_b.any()):
+        return False
+    ta, tb = a.triangles[near_a], b.triangles[near_b]
+    ba, bb = a.triangle_boxes[near_a], b.triangle_boxes[near_b]
+    if len(ta) * len(tb) > _MAX_TRIANGLE_PAIRS:
+        return bool(a.manifold.min_gap(b.manifold, 2.0 * tol) <= tol)
+    ia, ib = np.nonzero(
+        np.all(ba[:, None, :3] <= bb[None, :, 3:] + tol, axis=2)
+        & np.all(bb[None, :, :3] <= ba[:, None, 3:] + tol, axis=2)
     )
+    t1, t2 = ta[ia], tb[ib]
+    # Pairs separated by the plane of either triangle are farther apart than the tolerance.
+    keep = ~(_beyond_plane(t1, t2, tol) | _beyond_plane(t2, t1, tol))
+    if not keep.any():
+        return False
+    return bool(_triangle_distances(t1[keep], t2[keep]).min() <= tol)
+
+
+def _separated_by_planes(triangles: ArrayF64, planes: ArrayF64, gap: float) -> ArrayBool:
+    """Which (M, 3, 3) triangles lie wholly more than ``gap`` [m] outside one of the planes.
+
+    Args:
+        triangles: (M, 3, 3) corners [m].
+        planes: (F, 4) planes (n, d) with unit n, n . x <= d inside.
+        gap: Margin [m].
+    """
+    if len(planes) == 0 or len(triangles) == 0:
+        return np.zeros(len(triangles), dtype=bool)
+    side = triangles @ planes[:, :3].T - planes[:, 3]  # (M, 3, F)
+    return np.any(side.min(axis=1) > gap, axis=1)
+
+
+def _beyond_plane(t1: ArrayF64, t2: ArrayF64, gap: float) -> ArrayBool:
+    """Which (P, 3, 3) triangles t2 lie wholly more than ``gap`` [m] to one side of t1's plane."""
+    n = np.cross(t1[:, 1] - t1[:, 0], t1[:, 2] - t1[:, 0])
+    length = np.linalg.norm(n, axis=1)
+    ok = length > 1e-300
+    n = n / np.where(ok, length, 1.0)[:, None]
+    side = np.einsum("pkj,pj->pk", t2 - t1[:, :1], n)  # (P, 3) signed distances
+    return ok & ((side.min(axis=1) > gap) | (side.max(axis=1) < -gap))
+
+
+# Above this many triangle pairs, _touch asks manifold3d's min_gap instead.
+_MAX_TRIANGLE_PAIRS = 2_000_000
+
+
+def _boxes_meet(boxes: ArrayF64, lo: ArrayF64, hi: ArrayF64) -> ArrayBool:
+    """Which (M, 6) boxes meet the box [lo, hi]."""
+    meet = boxes[:, 0] <= hi[0]
+    for k in range(1, 3):
+        meet &= boxes[:, k] <= hi[k]
+    for k in range(3):
+        meet &= boxes[:, 3 + k] >= lo[k]
+    return meet
+
+
+def _dot(u: ArrayF64, v: ArrayF64) -> ArrayF64:
+    return np.einsum("ij,ij->i", u, v)
+
+
+def _point_triangle_distances(p: ArrayF64, a: ArrayF64, b: ArrayF64, c: ArrayF64) -> ArrayF64:
+    """(P,) distances from the points p to the triangles (a, b, c), all (P, 3) [m].
+
+    Closest point by Voronoi regions (Ericson, Real-Time Collision Detection, 5.1.5).
+    """
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = _dot(ab, ap), _dot(ac, ap)
+    bp = p - b
+    d3, d4 = _dot(ab, bp), _dot(ac, bp)
+    cp = p - c
+    d5, d6 = _dot(ab, cp), _dot(ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v_face, w_face = vb / denom, vc / denom
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    closest = a + v_face[:, None] * ab + w_face[:, None] * ac  # interior of the face
+    regions = [
+        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + t_bc[:, None] * (c - b)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac),
+        ((d6 >= 0) & (d5 <= d6), c),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab),
+        ((d3 >= 0) & (d4 <= d3), b),
+        ((d1 <= 0) & (d2 <= 0), a),
+    ]
+    for mask, point in regions:  # the first matching region wins: apply in reverse
+        closest = np.where(mask[:, None], point, closest)
+    dist = np.linalg.norm(p - closest, axis=1)
+    # A degenerate triangle can leave NaN: fall back to the distance to its corners.
+    corners = np.minimum.reduce([np.linalg.norm(p - q, axis=1) for q in (a, b, c)])
+    return np.where(np.isfinite(dist), np.minimum(dist, corners), corners)
+
+
+def _segment_distances(p1: ArrayF64, q1: ArrayF64, p2: ArrayF64, q2: ArrayF64) -> ArrayF64:
+    """(P,) distances between the segments p1q1 and p2q2, all (P, 3) [m] (Ericson 5.1.9).
+
+    Degenerate segments give inf: their points are covered by the point-triangle distances.
+    """
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e, f = _dot(d1, d1), _dot(d2, d2), _dot(d2, r)
+    c, b = _dot(d1, r), _dot(d1, d2)
+    denom = a * e - b * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(denom > 1e-300, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
+        t = (b * s + f) / e
+        low, high = t < 0.0, t > 1.0
+        s = np.where(low, np.clip(-c / a, 0.0, 1.0), np.where(high, np.clip((b - c) / a, 0.0, 1.0), s))
+        t = np.clip(t, 0.0, 1.0)
+    dist = np.linalg.norm(p1 + s[:, None] * d1 - p2 - t[:, None] * d2, axis=1)
+    return np.where((a > 1e-300) & (e > 1e-300) & np.isfinite(dist), dist, np.inf)
+
+
+def _triangle_distances(t1: ArrayF64, t2: ArrayF64) -> ArrayF64:
+    """(P,) distances between the (P, 3, 3) triangles t1 and t2 that do not cross [m].
+
+    The least of the six corner-to-triangle and nine edge-to-edge distances: exact for
+    triangles that touch or are apart (the surfaces of disjoint solids do not cross).
+    """
+    out = np.full(len(t1), np.inf)
+    for k in range(3):
+        out = np.minimum(out, _point_triangle_distances(t1[:, k], t2[:, 0], t2[:, 1], t2[:, 2]))
+        out = np.minimum(out, _point_triangle_distances(t2[:, k], t1[:, 0], t1[:, 1], t1[:, 2]))
+    for i in range(3):
+        for j in range(3):
+            out = np.minimum(
+                out,
+                _segment_distances(t1[:, i], t1[:, (i + 1) % 3], t2[:, j], t2[:, (j + 1) % 3]),
+            )
+    return out
+
+
+def _touch_groups(pieces: Sequence[_Component], sources: Sequence[int]) -> list[list[int]]:
+    """Groups of pieces connected by touching, for the groups that contain a source index.
+
+    Only pairs with a source are tested, so a group is complete when every piece that could
+    join it from outside is a source or touches one.
+    """
+    n = len(pieces)
     parent = list(range(n))
 
     def find(i: int) -> int:
@@ -615,21 +800,34 @@ def _components(region: m3.Manifold) -> list[_Component]:
             i = parent[i]
         return i
 
-    for i, j in zip(*np.nonzero(np.triu(overlap, k=1)), strict=True):
-        ri, rj = find(int(i)), find(int(j))
-        if ri != rj and pieces[i].manifold.min_gap(pieces[j].manifold, tol) < tol:
-            parent[rj] = ri
-    groups: dict[int, list[_Component]] = {}
+    if n > 1 and sources:
+        boxes = np.array([p.bbox for p in pieces])  # (n, 6)
+        tol = TOUCH_TOLERANCE
+        for i in sources:
+            near = np.all(boxes[:, :3] <= boxes[i, 3:] + tol, axis=1) & np.all(
+                boxes[:, 3:] >= boxes[i, :3] - tol, axis=1
+            )
+            near[i] = False
+            for j in np.flatnonzero(near):
+                ri, rj = find(i), find(int(j))
+                if ri != rj and _touch(pieces[i], pieces[int(j)]):
+                    parent[rj] = ri
+    groups: dict[int, list[int]] = {}
     for i in range(n):
-        groups.setdefault(find(i), []).append(pieces[i])
-    merged = []
-    for group in groups.values():
-        if len(group) == 1:
-            merged.append(group[0])
-        else:
-            solid = m3.Manifold.batch_boolean([g.manifold for g in group], m3.OpType.Add)
-            merged.append(_Component(solid, volume=sum(g.volume for g in group)))
-    return merged
+        groups.setdefault(find(i), []).append(i)
+    wanted = {find(i) for i in sources}
+    return [g for root, g in groups.items() if root in wanted]
+
+
+def _merge(pieces: Sequence[_Component]) -> _Component:
+    if len(pieces) == 1:
+        return pieces[0]
+    solid = m3.Manifold.batch_boolean([p.manifold for p in pieces], m3.OpType.Add)
+    return _Component(solid, volume=float(sum(p.volume for p in pieces)))
+
+
+def _pieces(region: m3.Manifold) -> list[_Component]:
+    return [c for c in (_Component(p) for p in region.decompose()) if not c.manifold.is_empty()]
 
 
 def components(region: m3.Manifold) -> tuple[m3.Manifold, ...]:
@@ -638,7 +836,26 @@ def components(region: m3.Manifold) -> tuple[m3.Manifold, ...]:
     The pieces of ``region.decompose()``, merged when they touch (gap up to
     TOUCH_TOLERANCE), since manifold3d separates solids meeting only at an edge or vertex.
     """
-    return tuple(c.manifold for c in _components(region))
+    pieces = _pieces(region)
+    groups = _touch_groups(pieces, list(range(len(pieces))))
+    return tuple(_merge([pieces[i] for i in g]).manifold for g in groups)
+
+
+def _report(rule: str, parts: Sequence[_Component]) -> RemovedComponent:
+    comp = _merge(parts)
+    volume, centroid = mesh_volume_centroid(comp.manifold)
+    if not volume > 0.0:
+        # No volume to weight by (degenerate pieces): the centre of their bounding box.
+        centroid = comp.bbox[:3] / 2.0 + comp.bbox[3:] / 2.0
+    return RemovedComponent(rule=rule, volume=comp.volume, centroid=centroid, mesh=comp.manifold)
+
+
+def _first_rule(
+    comp: _Component,
+    rules: Sequence[tuple[str, Callable[[_Component, PlausibilityContext], bool]]],
+    ctx: PlausibilityContext,
+) -> str | None:
+    return next((name for name, fires in rules if fires(comp, ctx)), None)
 
 
 def apply_plausibility(r2: m3.Manifold, ctx: PlausibilityContext) -> PlausibilityResult:
@@ -647,12 +864,16 @@ def apply_plausibility(r2: m3.Manifold, ctx: PlausibilityContext) -> Plausibilit
     Each enabled rule (``ctx.params.<rule>``) is evaluated in ``RULE_ORDER``; a component is
     removed by the first rule that fires and reported with it.
 
+    Every rule is monotone (if it spares a set, it spares every superset), so a piece that
+    is kept on its own keeps every piece touching it; only groups of touching pieces that
+    would all be removed are judged again as one component.
+
     Args:
         r2: The region R2 (world frame).
         ctx: Zone, parameters, support, known objects and the previous cycle.
 
     Returns:
-        R3, its components, and the removed components with rule, volume and centroid.
+        R3, its pieces, and the removed components with rule, volume and centroid.
 
     Raises:
         GeometryError: If R2 or a boolean result is not a valid manifold.
@@ -661,25 +882,45 @@ def apply_plausibility(r2: m3.Manifold, ctx: PlausibilityContext) -> Plausibilit
         raise GeometryError(f"plausibility: R2 is not a valid manifold (status {r2.status().name})")
     if r2.is_empty():
         return PlausibilityResult(region=r2, kept=(), removed=())
-    enabled = [(name, _RULES[name]) for name in RULE_ORDER if getattr(ctx.params, name)]
-    kept: list[m3.Manifold] = []
+    rules = [(name, _RULES[name]) for name in RULE_ORDER if getattr(ctx.params, name)]
+    pieces = _pieces(r2)
     removed: list[RemovedComponent] = []
-    for comp in _components(r2):
-        rule = next((name for name, fires in enabled if fires(comp, ctx)), None)
-        if rule is None:
-            kept.append(comp.manifold)
+    keep = [True] * len(pieces)
+    if ctx.params.too_small:
+        # Degenerate pieces (flat slivers that boolean operations leave behind) hold no
+        # space: removed as one too_small report, and never used to connect other pieces.
+        flat = [i for i, p in enumerate(pieces) if abs(p.volume) <= VOLUME_TOLERANCE]
+        if flat:
+            removed.append(_report("too_small", [pieces[i] for i in flat]))
+            for i in flat:
+                keep[i] = False
+            solid = [i for i, p in enumerate(pieces) if keep[i]]
+            pieces = [pieces[i] for i in solid]
+            keep = [True] * len(pieces)
+    first = [_first_rule(p, rules, ctx) if rules else None for p in pieces]
+    keep = [rule is None for rule in first]
+    candidates = [i for i, rule in enumerate(first) if rule is not None]
+    for group in _touch_groups(pieces, candidates):
+        if any(keep[i] for i in group):
+            for i in group:
+                keep[i] = True
             continue
-        _, centroid = mesh_volume_centroid(comp.manifold)
-        removed.append(
-            RemovedComponent(rule=rule, volume=comp.volume, centroid=centroid, mesh=comp.manifold)
-        )
+        comp = _merge([pieces[i] for i in group])
+        rule = first[group[0]] if len(group) == 1 else _first_rule(comp, rules, ctx)
+        if rule is None:
+            for i in group:
+                keep[i] = True
+            continue
+        removed.append(_report(rule, [comp]))
+    kept = tuple(p.manifold for p, k in zip(pieces, keep, strict=True) if k)
     if not removed:
         region = r2
+    elif len(kept) == 1:
+        region = kept[0]
     elif kept:
-        region = m3.Manifold.batch_boolean(kept, m3.OpType.Add)
+        region = m3.Manifold.batch_boolean(list(kept), m3.OpType.Add)
     else:
         region = m3.Manifold()
     if region.status() != m3.Error.NoError:
         raise GeometryError(f"plausibility: R3 union failed (status {region.status().name})")
-    return PlausibilityResult(region=region, kept=tuple(kept), removed=tuple(removed))
-
+    return PlausibilityResult(region=region, kept=kept, removed=tuple(removed))

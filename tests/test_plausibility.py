@@ -514,4 +514,33 @@ def test_volume_is_conserved(noise) -> None:
     params = PlausibilityParams(entry=True, teleport=True)
     result = apply_plausibility(r2, ctx_for(params=params, previous=(blobs[0],), dt=0.1))
     assert result.region.volume() + result.removed_volume == pytest.approx(r2.volume(), rel=1e-6)
-    assert len(result.kept) + len(result.removed) == len(components(r2))
+    kept_volume = sum(k.volume() for k in result.kept)
+    assert kept_volume == pytest.approx(result.region.volume(), rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    a=st.tuples(*[st.floats(0.0, 0.5)] * 3),
+    size_a=st.tuples(*[st.floats(0.05, 0.5)] * 3),
+    offset=st.tuples(*[st.sampled_from([-1e-3, -2e-5, 0.0, 5e-6, 2e-5, 1e-3, 0.1])] * 3),
+    yaw=st.sampled_from([0.0, 15.0, 45.0]),
+    sphere=st.booleans(),
+)
+def test_touch_agrees_with_min_gap(a, size_a, offset, yaw, sphere) -> None:
+    """The triangle-pair touch test agrees with manifold3d's min_gap on disjoint solids."""
+    first = box(a, np.add(a, size_a))
+    lo, hi = np.asarray(first.bounding_box()).reshape(2, 3)
+    # The second solid sits against the +x face of the first, shifted by the offset.
+    second = m3.Manifold.sphere(0.1, 24) if sphere else box((0, -0.1, -0.1), (0.2, 0.1, 0.1))
+    second = second.rotate((0.0, 0.0, yaw))
+    s_lo = np.asarray(second.bounding_box())[:3]
+    centre = np.array([hi[0], (lo[1] + hi[1]) / 2, (lo[2] + hi[2]) / 2])
+    second = second.translate(tuple(centre - [s_lo[0], 0, 0] + np.asarray(offset)))
+    if not (first ^ second).is_empty():
+        return  # overlapping solids are not pieces of one region
+    gap = first.min_gap(second, 1.0)
+    if abs(gap - pl.TOUCH_TOLERANCE) < 1e-7:
+        return  # too close to the threshold to compare
+    expect = gap <= pl.TOUCH_TOLERANCE
+    got = pl._touch(pl._Component(first), pl._Component(second))
+    assert got == expect, (gap, got)
