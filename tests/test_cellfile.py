@@ -139,7 +139,7 @@ def test_paper_cell() -> None:
         assert cam.kind == "depth"
         assert (cam.intrinsics.width, cam.intrinsics.height) == (640, 480)
         assert cam.intrinsics == Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
-        assert (cam.near, cam.far, cam.noise, cam.tolerance_sigmas) == (0.3, 8.0, 0.003, 3.0)
+        assert (cam.near, cam.far, cam.noise, cam.tolerance_sigmas) == (0.3, 8.0, 0.0015, 3.0)
         # Ceiling corner, looking down at the middle of the cell.
         assert cam.center[2] == pytest.approx(3.3)
         optical_axis = cam.T_world_camera[:3, 2]
