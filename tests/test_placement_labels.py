@@ -348,3 +348,49 @@ def test_project_grid_matches_camera_project(position, look_at, step):
     sure &= np.abs(z - cam.near) > 1e-4
     assert np.array_equal(proj.pixel[sure], expected[sure].astype(np.int64))
     assert np.allclose(proj.depth, z, atol=1e-4)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    st.tuples(st.floats(0.3, 2.7), st.floats(0.3, 2.7), st.floats(0.2, 1.95)),
+    look_ats,
+    st.sampled_from(["depth", "color"]),
+)
+def test_fast_path_matches_full_renders(position, pan_tilt, kind):
+    # The evaluation renders targets only over the image rectangle of their bounding box
+    # (clipped to the camera's range); it must label exactly as full renders do, also for
+    # cameras next to or above the target, or with the target partly behind them.
+    cam = small_camera("c", kind, position, pan_tilt)
+    B = render_depth(cam, [OBSTACLE], 0.0)
+    D = render_depth(cam, [OBSTACLE, TARGET], 0.0)
+    prep = prepare(SMALL_PROBLEM)
+    direct = label_voxels(
+        [cam], SMALL_GRID, [B], [D], k=1,
+        static_mask=prep.static_mask, target_mask=prep.target_masks[0],
+    )
+    assert np.array_equal(label_scene(SMALL_PROBLEM, [cam]), direct)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.tuples(st.floats(0.3, 2.7), st.floats(0.3, 2.7), st.floats(0.2, 1.95)),
+    st.tuples(st.floats(-np.pi, np.pi), st.floats(-0.5, np.pi / 2)),
+    st.sampled_from([1, 2]),
+)
+def test_target_window_holds_every_target_pixel_in_range(position, pan_tilt, step):
+    from polyhull.placement.objectives import _render_targets_roi
+    from polyhull.raycast import MeshCaster
+
+    cam = small_camera("c", "depth", position, pan_tilt)
+    caster = MeshCaster([TARGET])
+    lo, hi = TARGET.bounds
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    full = caster.depth(cam, step)
+    full[full > cam.far] = np.inf
+    window = _render_targets_roi(cam, caster, corners, step, full.shape)
+    fast = np.full(full.shape, np.inf, dtype=np.float32)
+    if window is not None:
+        (rows, cols), depth = window
+        fast[rows, cols] = depth
+        fast[fast > cam.far] = np.inf
+    assert np.allclose(fast, full, rtol=1e-6)  # inf == inf where nothing is hit

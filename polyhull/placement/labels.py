@@ -241,7 +241,8 @@ def free_depth_image(
     evaluation uses the same definition of F as the reconstruction (paper section 4, item
     4): ``min(D, B) - tau(D)`` for a depth camera, and for a colour camera nothing along a
     changed pixel and ``B - tau(B)`` along an unchanged one, clipped to ``[near, far]``.
-    A pixel is changed when ``D < B - tau(D)`` (the engine's test).
+    A pixel is changed when ``D < B - tau(D)`` (the engine's test) and ``D <= far`` (a
+    target beyond the range reads invalid and changes nothing).
 
     Args:
         camera: The camera (its ``kind``, range and noise model).
@@ -260,9 +261,10 @@ def free_depth_image(
         raise GeometryError(
             f"camera '{camera.name}': reference shape {B.shape} differs from measured {D.shape}"
         )
-    finite_d = np.isfinite(D)
+    # A target beyond the range reads invalid, as does the background behind it: no change.
+    in_range = np.isfinite(D) & (D <= camera.far)
     with np.errstate(invalid="ignore"):
-        changed = finite_d & (D < B - camera.tau(np.where(finite_d, D, 0.0)))
+        changed = in_range & (D < B - camera.tau(np.where(in_range, D, 0.0)))
     free = free_depth(camera, D, B)
     return free.astype(np.float32), changed
 

@@ -402,40 +402,74 @@ def _build(problem: PlacementProblem) -> PreparedProblem:
     )
 
 
+# Edges of a box given by its 8 corners in itertools.product order (x, y, z bits 4, 2, 1).
+_BOX_EDGES = np.array([(i, i | bit) for bit in (4, 2, 1) for i in range(8) if not i & bit])
+
+
+def _visible_box_points(camera: Camera, corners: ArrayF64) -> ArrayF64:
+    """Camera-frame vertices (M, 3) of the box ``corners`` clipped to ``1e-6 <= z <= far``.
+
+    Targets nearer than that cannot be projected and farther ones change nothing (a depth
+    beyond ``far`` is invalid in the reference as well). The vertices of a convex solid cut
+    by a slab are its corners inside the slab and its edges' crossings of the two planes.
+    """
+    pc = camera.world_to_camera(corners)  # (8, 3)
+    lo, hi = 1e-6, camera.far
+    z = pc[:, 2]
+    points = [pc[(z >= lo) & (z <= hi)]]
+    a, b = pc[_BOX_EDGES[:, 0]], pc[_BOX_EDGES[:, 1]]
+    for plane in (lo, hi):
+        da, db = a[:, 2] - plane, b[:, 2] - plane
+        cross = da * db < 0
+        if np.any(cross):
+            t = (da[cross] / (da[cross] - db[cross]))[:, None]
+            points.append(a[cross] + t * (b[cross] - a[cross]))
+    return np.concatenate(points)
+
+
 def _render_targets_roi(
     camera: Camera, caster: MeshCaster, corners: ArrayF64, step: int, shape: tuple[int, int]
 ) -> tuple[tuple[slice, slice], ArrayF32] | None:
     """z-depth [m] of the targets over the image rectangle their bounding box projects to.
 
-    Returns None when the targets cannot be seen; otherwise the (rows, cols) slices of the
-    rendered image and the depth over them (+inf where no target is hit).
+    Args:
+        camera: The camera.
+        caster: Ray caster of the targets.
+        corners: (8, 3) corners of the targets' axis-aligned bounding box [m], world.
+        step: Pixel stride of the rendered image.
+        shape: (H', W') of the rendered image.
+
+    Returns:
+        None when the targets cannot change the image; otherwise the (rows, cols) slices
+        of the rendered image and the depth over them (+inf where no target is hit).
     """
     if caster.is_empty or len(corners) == 0:
         return None
     k = camera.intrinsics
-    uv, z = camera.project(corners)
-    h, w = shape
-    if np.all(z <= 0):
+    pc = _visible_box_points(camera, corners)
+    if len(pc) == 0:
         return None
-    if np.any(z <= 1e-6):
-        rows, cols = slice(0, h), slice(0, w)
-    else:
-        u0 = int(np.floor(uv[:, 0].min() / step)) - 1
-        u1 = int(np.ceil(uv[:, 0].max() / step)) + 2
-        v0 = int(np.floor(uv[:, 1].min() / step)) - 1
-        v1 = int(np.ceil(uv[:, 1].max() / step)) + 2
-        u0, u1 = max(u0, 0), min(u1, w)
-        v0, v1 = max(v0, 0), min(v1, h)
-        if u0 >= u1 or v0 >= v1:
-            return None
-        rows, cols = slice(v0, v1), slice(u0, u1)
-    u = np.arange(cols.start, cols.stop, dtype=np.float64) * step
-    v = np.arange(rows.start, rows.stop, dtype=np.float64) * step
-    uu, vv = np.meshgrid((u - k.cx) / k.fx, (v - k.cy) / k.fy)
-    rays_camera = np.stack([uu, vv, np.ones_like(uu)], axis=-1)
-    directions = rays_camera.reshape(-1, 3) @ camera.T_world_camera[:3, :3].T
+    u = k.fx * pc[:, 0] / pc[:, 2] + k.cx
+    v = k.fy * pc[:, 1] / pc[:, 2] + k.cy
+    h, w = shape
+    # One rendered pixel of margin: the rectangle holds every pixel centre whose ray
+    # can meet the box.
+    u0 = max(int(np.floor(u.min() / step)) - 1, 0)
+    u1 = min(int(np.ceil(u.max() / step)) + 2, w)
+    v0 = max(int(np.floor(v.min() / step)) - 1, 0)
+    v1 = min(int(np.ceil(v.max() / step)) + 2, h)
+    if u0 >= u1 or v0 >= v1:
+        return None
+    rows, cols = slice(v0, v1), slice(u0, u1)
+    x = (np.arange(u0, u1, dtype=np.float64) * step - k.cx) / k.fx
+    y = (np.arange(v0, v1, dtype=np.float64) * step - k.cy) / k.fy
+    R = camera.T_world_camera[:3, :3]
+    # World ray directions with unit camera z: R @ (x, y, 1), built without a matmul.
+    directions = (
+        x[None, :, None] * R[:, 0] + y[:, None, None] * R[:, 1] + R[:, 2]
+    ).reshape(-1, 3)
     t = caster.first_hit(np.asarray(camera.center, dtype=np.float64), directions)
-    return (rows, cols), t.reshape(uu.shape).astype(np.float32)
+    return (rows, cols), t.reshape(len(y), len(x)).astype(np.float32)
 
 
 class _SceneVotes(NamedTuple):
@@ -463,7 +497,8 @@ def _votes(prep: PreparedProblem, cameras: Sequence[Camera]) -> _SceneVotes:
         base_free = visible & (proj.depth < f_ref.ravel()[pix])
         base_count += base_free
         hit_union = np.zeros(B.shape, dtype=bool)
-        per_scene: list[tuple[int, ArrayF32, ArrayBool]] = []
+        # Per scene: its window of the image, and free depth and change mask over it.
+        per_scene: list[tuple[int, tuple[slice, slice], ArrayF32, ArrayBool]] = []
         for s in range(n_scenes):
             roi = _render_targets_roi(
                 camera, prep.target_casters[s], prep.target_corners[s], step, B.shape
@@ -477,24 +512,28 @@ def _votes(prep: PreparedProblem, cameras: Sequence[Camera]) -> _SceneVotes:
             if not np.any(hit):
                 continue
             f_roi, ch_roi = free_depth_image(camera, B_roi, D_roi)
-            f_full = f_ref.copy()
-            f_full[window] = f_roi
-            ch_full = np.zeros(B.shape, dtype=bool)
-            ch_full[window] = ch_roi
             hit_union[window] |= hit
-            per_scene.append((s, f_full, ch_full))
+            per_scene.append((s, window, f_roi, ch_roi))
         if not per_scene:
             continue
+        # Only voxels seen through a pixel that some target covers can change label.
         affected = np.flatnonzero(visible & hit_union.ravel()[pix])
         if len(affected) == 0:
             continue
         pa = pix[affected]
+        row, col = np.divmod(pa, B.shape[1])
         za = proj.depth[affected]
         base_a = base_free[affected]
-        for s, f_full, ch_full in per_scene:
-            free_s = za < f_full.ravel()[pa]
-            correction[s, affected] += free_s.astype(np.int16) - base_a
-            changed[s, affected] |= ~free_s & ch_full.ravel()[pa]
+        for s, (rows, cols), f_roi, ch_roi in per_scene:
+            inside = (row >= rows.start) & (row < rows.stop) & (col >= cols.start) & (col < cols.stop)
+            idx = np.flatnonzero(inside)
+            if len(idx) == 0:
+                continue
+            local = (row[idx] - rows.start) * (cols.stop - cols.start) + (col[idx] - cols.start)
+            free_s = za[idx] < f_roi.ravel()[local]
+            target = affected[idx]
+            correction[s, target] += free_s.astype(np.int16) - base_a[idx]
+            changed[s, target] |= ~free_s & ch_roi.ravel()[local]
     return _SceneVotes(base_count, correction, changed)
 
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import concurrent.futures as cf
 import contextlib
 import multiprocessing
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -68,6 +69,8 @@ __all__ = [
 ]
 
 Method = Literal["cma-es", "random"]
+
+_BLAS_THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 StopReason = Literal["evaluations", "time", "eps"]
 
 
@@ -436,12 +439,18 @@ def make_executor(workers: int = 1, scheduler: str | None = None) -> Iterator[cf
     if workers <= 1:
         yield InlineExecutor()
         return
-    # spawn, not fork: the parent holds an Embree scene and threads.
+    # One BLAS thread per worker: the pool already keeps every core busy, and threaded
+    # small matrix products only burn CPU. Workers are spawned (not forked: the parent
+    # holds an Embree scene and threads) while the pool lives, and read this at start.
+    limits = {name: "1" for name in _BLAS_THREAD_VARIABLES if name not in os.environ}
+    os.environ.update(limits)
     pool = cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        for name in limits:
+            os.environ.pop(name, None)
 
 
 def evaluate_vector(
