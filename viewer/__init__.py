@@ -22,10 +22,15 @@ The core package ``polyhull`` never imports this one. It needs the ``viewer`` ex
 
 from __future__ import annotations
 
+import warnings as _warnings
+
 from polyhull.errors import MissingExtraError
 
 try:
-    import meshcat as _meshcat  # noqa: F401
+    with _warnings.catch_warnings():
+        # meshcat 0.3 imports the deprecated zmq.eventloop.ioloop; nothing to act on here.
+        _warnings.simplefilter("ignore", DeprecationWarning)
+        import meshcat as _meshcat  # noqa: F401
     import umsgpack as _umsgpack  # noqa: F401
 except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
     raise MissingExtraError("the viewer", "viewer") from _exc
@@ -33,6 +38,8 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
 from ._colors import STYLE as STYLE
 from ._colors import Style as Style
 from ._colors import depth_colors as depth_colors
+from ._colors import hex_to_rgb as hex_to_rgb
+from ._colors import rgb_to_hex as rgb_to_hex
 from ._colors import speed_color as speed_color
 from ._colors import speed_color_hex as speed_color_hex
 from ._demo import DemoRecorder as DemoRecorder
@@ -74,6 +81,8 @@ __all__ = [
     "draw_verdict",
     "feature_edges",
     "frame_points",
+    "hex_to_rgb",
+    "rgb_to_hex",
     "set_view",
     "speed_color",
     "speed_color_hex",

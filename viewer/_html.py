@@ -253,8 +253,8 @@ def write_html(vis: Any, path: str | Path, title: str = "polyhull") -> Path:
     """
     out = Path(path)
     html = vis.static_html(title=title) if isinstance(vis, StaticVisualizer) else vis.static_html()
-    out.parent.mkdir(parents=True, exist_ok=True)
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(html, encoding="utf-8")
     except OSError as exc:
         raise PolyhullError(f"{out}: cannot write the HTML scene ({exc})") from exc

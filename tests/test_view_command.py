@@ -1,0 +1,242 @@
+"""Tests of ``polyhull view``: standalone HTML, frames and regions, and the live server."""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polyhull_viewer
+import pytest
+import umsgpack
+
+from polyhull.cellfile import load_cell
+from polyhull.commands import view
+from polyhull.errors import FrameError, MissingExtraError, PolyhullError
+from polyhull.frames import DepthFrame, save_frames
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_CELL = ROOT / "fixtures" / "cells" / "paper_cell.toml"
+SMALL_CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
+
+# Runs the command the way `polyhull view ...` does, without needing every other command.
+RUNNER = (
+    "import argparse, sys\n"
+    "from polyhull.commands import view\n"
+    "p = argparse.ArgumentParser(prog='polyhull')\n"
+    "view.register(p.add_subparsers())\n"
+    "args = p.parse_args(['view', *sys.argv[1:]])\n"
+    "sys.exit(args.func(args))\n"
+)
+
+
+def run_view(*argv: str) -> int:
+    parser = argparse.ArgumentParser(prog="polyhull")
+    view.register(parser.add_subparsers())
+    args = parser.parse_args(["view", *argv])
+    return int(args.func(args))
+
+
+def html_commands(path: Path) -> list[dict[str, Any]]:
+    html = path.read_text(encoding="utf-8")
+    match = re.search(r"var commands = (\[.*?\]);", html, re.S)
+    assert match is not None
+    return [umsgpack.unpackb(base64.b64decode(b)) for b in json.loads(match.group(1))]
+
+
+def object_paths(path: Path) -> list[str]:
+    return [c["path"] for c in html_commands(path) if c["type"] == "set_object"]
+
+
+@pytest.fixture(scope="module")
+def small_frames(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Frames of the small cell: floor, table, the robot at its default q and a person."""
+    from polyhull.person import make_person
+    from polyhull.raycast import StaticScene
+    from polyhull.robot import Robot
+
+    cell = load_cell(SMALL_CELL)
+    assert cell.robot is not None
+    q = np.asarray(cell.robot.q)
+    dynamic = [Robot.from_spec(cell.robot).mesh(q), make_person(position=(0.6, 0.7), yaw=0.8)]
+    scene = StaticScene([o.mesh for o in cell.obstacles], cell.zone.floor_z)
+    frames = {c.name: DepthFrame(c.name, scene.render(c, dynamic), stamp=2.0) for c in cell.cameras}
+    return save_frames(tmp_path_factory.mktemp("frames") / "small.npz", frames, q, 2.0)
+
+
+# -- standalone HTML ------------------------------------------------------------------------
+
+
+def test_html_of_paper_cell(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from polyhull.robot import Robot
+
+    out = tmp_path / "cell.html"
+    assert run_view(str(PAPER_CELL), "--html", str(out)) == 0
+    assert f"wrote {out}" in capsys.readouterr().out
+    paths = set(object_paths(out))
+    cell = load_cell(PAPER_CELL)
+    assert cell.robot is not None
+    links = Robot.from_spec(cell.robot).visual_meshes(cell.robot.q)
+    assert {f"/polyhull/robot/{link}" for link in links} <= paths
+    assert {f"/polyhull/cameras/{c.name}/frustum" for c in cell.cameras} <= paths
+    assert {f"/polyhull/cell/obstacles/{o.name}" for o in cell.obstacles} <= paths
+    assert "/polyhull/cell/zone" in paths
+    assert not any("/regions/" in p or "/frames/" in p for p in paths)
+    html = out.read_text(encoding="utf-8")
+    assert "<title>polyhull: paper cell</title>" in html
+    assert not re.search(r"<(script|link|img)[^>]+(src|href)\s*=", html, re.I)
+
+
+def test_html_with_frames_draws_regions(
+    tmp_path: Path, small_frames: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from polyhull.frames import load_frames
+    from polyhull.monitor import Monitor
+
+    out = tmp_path / "frames.html"
+    assert run_view(str(SMALL_CELL), "--frames", str(small_frames), "--html", str(out), "--max-points", "700") == 0
+    stdout = capsys.readouterr().out
+    assert "polyhull view: distance" in stdout
+    paths = set(object_paths(out))
+    cell = load_cell(SMALL_CELL)
+    names = [c.name for c in cell.cameras]
+    assert {f"/polyhull/frames/{n}" for n in names} <= paths
+    assert {f"/polyhull/regions/camera/{n}" for n in names} <= paths
+    # The same cycle, run here: every non-empty region of the verdict is drawn.
+    recorded = load_frames(small_frames)
+    verdict = Monitor(cell).step(recorded.frames, recorded.q, stamp=recorded.stamp)
+    for name, region in (
+        ("hull", verdict.hull),
+        ("robot_occlusion", verdict.robot_occlusion),
+        ("region", verdict.region),
+    ):
+        assert (f"/polyhull/regions/{name}" in paths) == (not region.is_empty()), name
+    has_distance = verdict.closest_points is not None and np.isfinite(verdict.min_distance)
+    assert ("/polyhull/distance/segment" in paths) == has_distance
+    # At most --max-points points per camera.
+    for command in html_commands(out):
+        if command["type"] == "set_object" and "/frames/" in command["path"]:
+            position = command["object"]["geometries"][0]["data"]["attributes"]["position"]
+            assert 0 < len(position["array"].data) // 12 <= 700
+
+
+def test_frames_without_monitor_draws_point_clouds_only(
+    tmp_path: Path, small_frames: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "polyhull.monitor", None)  # import fails
+    out = tmp_path / "clouds.html"
+    assert run_view(str(SMALL_CELL), "--frames", str(small_frames), "--html", str(out)) == 0
+    assert "point clouds only" in capsys.readouterr().err
+    paths = object_paths(out)
+    assert any(p.startswith("/polyhull/frames/") for p in paths)
+    assert not any(p.startswith("/polyhull/regions") or p.startswith("/polyhull/distance") for p in paths)
+
+
+# -- errors ---------------------------------------------------------------------------------
+
+
+def test_missing_viewer_is_a_missing_extra_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "polyhull_viewer", None)
+    with pytest.raises(MissingExtraError, match=r"pip install 'polyhull\[viewer\]'"):
+        run_view(str(PAPER_CELL), "--html", str(tmp_path / "x.html"))
+    assert not (tmp_path / "x.html").exists()
+
+
+def test_bad_input_raises_polyhull_errors(tmp_path: Path, small_frames: Path) -> None:
+    with pytest.raises(PolyhullError):
+        run_view(str(tmp_path / "missing.toml"), "--html", str(tmp_path / "x.html"))
+    with pytest.raises(PolyhullError, match="max-points"):
+        run_view(str(PAPER_CELL), "--html", str(tmp_path / "x.html"), "--max-points", "0")
+    with pytest.raises(FrameError):
+        run_view(str(PAPER_CELL), "--frames", str(tmp_path / "missing.npz"), "--html", str(tmp_path / "x.html"))
+    # Frames of the small cell do not fit the paper cell's cameras.
+    with pytest.raises(FrameError):
+        run_view(str(PAPER_CELL), "--frames", str(small_frames), "--html", str(tmp_path / "x.html"))
+    assert not (tmp_path / "x.html").exists()
+
+
+# -- the live server ------------------------------------------------------------------------
+
+
+def _get(url: str) -> tuple[int, str]:
+    with urllib.request.urlopen(url, timeout=10) as response:
+        return response.status, response.read().decode("utf-8", "replace")
+
+
+def _refused(url: str) -> bool:
+    try:
+        _get(url)
+    except (urllib.error.URLError, ConnectionError, OSError):
+        return True
+    return False
+
+
+def test_serve_seconds_closes_the_server(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    opened: list[polyhull_viewer.LiveViewer] = []
+    urls: list[tuple[int, str]] = []
+
+    class Recording(polyhull_viewer.LiveViewer):
+        def __init__(self) -> None:
+            super().__init__()
+            opened.append(self)
+
+        def close(self, timeout: float = 5.0) -> None:
+            if not self.closed:
+                urls.append(_get(self.url))  # still serving right before closing
+            super().close(timeout)
+
+    monkeypatch.setattr(polyhull_viewer, "LiveViewer", Recording)
+    assert run_view(str(SMALL_CELL), "--serve-seconds", "0.2") == 0
+    out = capsys.readouterr().out
+    assert len(opened) == 1
+    live = opened[0]
+    assert f"at {live.url} (Ctrl-C to stop)" in out and "server stopped" in out
+    assert urls[0][0] == 200 and "MeshCat" in urls[0][1]
+    assert live.closed
+    assert live.process is not None and live.process.poll() is not None
+    assert _refused(live.url)
+    live.close()  # idempotent
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_signal_stops_serving_and_the_server(stop_signal: int) -> None:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", RUNNER, str(SMALL_CELL)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+
+    def pump() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.put(line)
+
+    threading.Thread(target=pump, daemon=True).start()
+    try:
+        line = lines.get(timeout=60)
+        match = re.search(r"at (http://\S+) \(Ctrl-C to stop\)", line)
+        assert match is not None, line
+        url = match.group(1)
+        status, body = _get(url)
+        assert status == 200 and "MeshCat" in body
+        proc.send_signal(stop_signal)
+        assert proc.wait(timeout=30) == 0
+        assert "server stopped" in lines.get(timeout=10)
+        assert _refused(url)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
