@@ -209,6 +209,24 @@ def test_serve_seconds_closes_the_server(monkeypatch: pytest.MonkeyPatch, capsys
     live.close()  # idempotent
 
 
+def test_server_is_closed_when_drawing_fails(small_frames: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    opened: list[polyhull_viewer.LiveViewer] = []
+
+    class Recording(polyhull_viewer.LiveViewer):
+        def __init__(self) -> None:
+            super().__init__()
+            opened.append(self)
+
+    monkeypatch.setattr(polyhull_viewer, "LiveViewer", Recording)
+    monkeypatch.setitem(sys.modules, "polyhull.monitor", None)
+    # The small cell's frames have the wrong shape for the paper cell's cameras.
+    with pytest.raises(FrameError, match="does not match"):
+        run_view(str(PAPER_CELL), "--frames", str(small_frames), "--serve-seconds", "30")
+    assert len(opened) == 1 and opened[0].closed
+    assert opened[0].process is not None and opened[0].process.poll() is not None
+    assert _refused(opened[0].url)
+
+
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
 def test_signal_stops_serving_and_the_server(stop_signal: int) -> None:
     proc = subprocess.Popen(

@@ -111,6 +111,9 @@ class VerdictLike(Protocol):
     @property
     def speed_scale(self) -> float: ...
 
+    @property
+    def q(self) -> Any: ...
+
 
 def _translation(p: ArrayF64) -> ArrayF64:
     T = np.eye(4)
@@ -170,7 +173,7 @@ def _resolve_robot(cell: Cell, robot: RobotLike | None) -> RobotLike | None:
         return robot
     from polyhull.robot import Robot  # the robot model is part of the core
 
-    return Robot.from_spec(cell.robot)  # type: ignore[no-any-return]
+    return Robot.from_spec(cell.robot)
 
 
 def draw_cell(
@@ -214,9 +217,12 @@ def draw_cell(
     if resolved is None:
         root["robot"].delete()
     else:
-        if q is None and cell.robot is None:
+        if q is not None:
+            q_robot = np.asarray(q, dtype=np.float64)
+        elif cell.robot is not None:
+            q_robot = np.asarray(cell.robot.q, dtype=np.float64)
+        else:
             raise RobotError("draw_cell: the cell has no [robot] entry, so give q [rad]")
-        q_robot = np.asarray(q if q is not None else cell.robot.q, dtype=np.float64)  # type: ignore[union-attr]
         draw_robot(root["robot"], resolved, q_robot, style=style)
 
     root["cameras"].delete()
@@ -424,8 +430,8 @@ def draw_scene(
     Each part is drawn by the function of the same name: :func:`draw_cell`,
     :func:`draw_frames`, :func:`draw_camera_regions`, :func:`draw_verdict`.
     """
-    if q is None and verdict is not None and getattr(verdict, "q", None) is not None:
-        q = np.asarray(verdict.q, dtype=np.float64)  # type: ignore[attr-defined]
+    if q is None and verdict is not None and verdict.q is not None and len(verdict.q) > 0:
+        q = np.asarray(verdict.q, dtype=np.float64)
     draw_cell(vis, cell, q, robot=robot, prefix=prefix, style=style)
     if frames is not None:
         draw_frames(vis, cell, frames, prefix=prefix, max_points=max_points, style=style)
