@@ -197,8 +197,8 @@ class PlausibilityResult:
 
     Attributes:
         region: R3 (R2 itself when nothing was removed).
-        kept: The pieces of R3 (``decompose`` pieces; pieces touching at an edge or a
-            vertex are listed apart).
+        kept: The kept components of R2, each as the solid inside its outer shell
+            (cavities filled; components touching at an edge or a vertex listed apart).
         removed: The removed components, each with its rule.
     """
 
@@ -236,25 +236,31 @@ def _vertices(m: m3.Manifold) -> ArrayF64:
     return np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
 
 
-def mesh_volume_centroid(m: m3.Manifold) -> tuple[float, ArrayF64]:
-    """Volume [m^3] and (3,) volume centroid [m] of a closed mesh.
+def _volume_moment(m: m3.Manifold) -> tuple[float, ArrayF64]:
+    """Signed volume [m^3] and (3,) first moment of volume [m^4] of a closed shell.
 
     Sums the signed tetrahedra from a reference point (the bounding-box centre, for
-    accuracy) to every triangle, as trimesh does. An empty mesh gives 0 and NaNs.
+    accuracy) to every triangle, as trimesh does; a cavity shell has a negative volume.
     """
     if m.is_empty():
-        return 0.0, np.full(3, np.nan)
+        return 0.0, np.zeros(3)
     mesh = m.to_mesh64()
     verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
     tris = np.asarray(mesh.tri_verts, dtype=np.int64)
     ref = verts.min(axis=0) / 2.0 + verts.max(axis=0) / 2.0
     a, b, c = (verts[tris[:, k]] - ref for k in range(3))
     vol6 = np.einsum("ij,ij->i", a, np.cross(b, c))  # 6 x signed tetra volumes (M,)
-    total6 = float(vol6.sum())
-    if total6 <= 0.0:
-        return 0.0, np.full(3, np.nan)
-    centroid = (vol6[:, None] * (a + b + c)).sum(axis=0) / (4.0 * total6) + ref
-    return total6 / 6.0, centroid
+    volume = float(vol6.sum()) / 6.0
+    moment = (vol6[:, None] * (a + b + c)).sum(axis=0) / 24.0 + volume * ref
+    return volume, moment
+
+
+def mesh_volume_centroid(m: m3.Manifold) -> tuple[float, ArrayF64]:
+    """Volume [m^3] and (3,) volume centroid [m] of a closed mesh (NaNs without volume)."""
+    volume, moment = _volume_moment(m)
+    if not volume > 0.0:
+        return max(volume, 0.0), np.full(3, np.nan)
+    return volume, moment / volume
 
 
 def _within(a: m3.Manifold, b: m3.Manifold, distance: float) -> bool:
@@ -277,14 +283,34 @@ def _geometry_key(m: m3.Manifold, extra: float) -> bytes:
 
 
 class _Component:
-    """A component with its cheap properties computed once (bbox, volume, mesh arrays)."""
+    """A component with its cheap properties computed once (bbox, volume, mesh arrays).
+
+    A component with cavities is its outer shell (as a filled solid, which every rule
+    treats leniently: contact and continuity can only be found more often, the shell test
+    fires less often) plus the cavity shells, which count in its net volume.
+    """
 
     __slots__ = (
-        "manifold", "bbox", "volume", "_vertices", "_triangles", "_triangle_boxes", "_hull_planes"
+        "manifold",
+        "shells",
+        "bbox",
+        "volume",
+        "_vertices",
+        "_triangles",
+        "_triangle_boxes",
+        "_hull_planes",
     )
 
-    def __init__(self, manifold: m3.Manifold, volume: float | None = None) -> None:
+    def __init__(
+        self,
+        manifold: m3.Manifold,
+        volume: float | None = None,
+        shells: tuple[m3.Manifold, ...] | None = None,
+    ) -> None:
+        # ``manifold`` is the solid bounded by the outer shell(s); ``shells`` are every
+        # boundary shell, cavities included, and ``volume`` is the net volume.
         self.manifold = manifold
+        self.shells = (manifold,) if shells is None else shells
         self.bbox = _bbox(manifold)
         self.volume = float(manifold.volume()) if volume is None else volume
         self._vertices: ArrayF64 | None = None
@@ -316,6 +342,18 @@ class _Component:
             self._load_mesh()
         assert self._triangles is not None
         return self._triangles
+
+    def winding(self, points: ArrayF64) -> ArrayF64:
+        """(N,) generalised winding numbers of the outer solid at the (N, 3) points."""
+        tri = self.triangles
+        out = np.zeros(len(points))
+        for i, p in enumerate(points):
+            a, b, c = tri[:, 0] - p, tri[:, 1] - p, tri[:, 2] - p
+            la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+            det = _dot(a, np.cross(b, c))
+            den = la * lb * lc + _dot(a, b) * lc + _dot(a, c) * lb + _dot(b, c) * la
+            out[i] = np.arctan2(det, den).sum() / (2.0 * np.pi)
+        return out
 
     @property
     def hull_planes(self) -> ArrayF64:
@@ -823,29 +861,66 @@ def _merge(pieces: Sequence[_Component]) -> _Component:
     if len(pieces) == 1:
         return pieces[0]
     solid = m3.Manifold.batch_boolean([p.manifold for p in pieces], m3.OpType.Add)
-    return _Component(solid, volume=float(sum(p.volume for p in pieces)))
+    shells = tuple(shell for p in pieces for shell in p.shells)
+    return _Component(solid, volume=float(sum(p.volume for p in pieces)), shells=shells)
 
 
-def _pieces(region: m3.Manifold) -> list[_Component]:
-    return [c for c in (_Component(p) for p in region.decompose()) if not c.manifold.is_empty()]
+def _pieces(region: m3.Manifold) -> tuple[list[_Component], list[_Component]]:
+    """The components of ``region`` (outer shells with their cavities) and its flat pieces.
+
+    ``decompose`` returns every boundary shell on its own; a shell of negative volume is a
+    cavity and joins the smallest outer shell that encloses it. Shells whose volume is
+    within VOLUME_TOLERANCE of zero are flat slivers and returned apart.
+    """
+    shells = [c for c in (_Component(p) for p in region.decompose()) if not c.manifold.is_empty()]
+    flat = [c for c in shells if abs(c.volume) <= VOLUME_TOLERANCE]
+    outer = [c for c in shells if c.volume > VOLUME_TOLERANCE]
+    cavities: dict[int, list[_Component]] = {}
+    for hole in (c for c in shells if c.volume < -VOLUME_TOLERANCE):
+        lo, hi = hole.bbox[:3], hole.bbox[3:]
+        around = [
+            i
+            for i, c in enumerate(outer)
+            if np.all(c.bbox[:3] <= lo + TOUCH_TOLERANCE) and np.all(c.bbox[3:] >= hi - TOUCH_TOLERANCE)
+        ]
+        if len(around) > 1:
+            point = hole.vertices[:1]
+            around = [i for i in around if outer[i].winding(point)[0] > 0.5] or around
+        if around:
+            owner = min(around, key=lambda i: outer[i].volume)
+            cavities.setdefault(owner, []).append(hole)
+    components = []
+    for i, c in enumerate(outer):
+        holes = cavities.get(i, [])
+        if holes:
+            net = c.volume + sum(h.volume for h in holes)
+            c = _Component(c.manifold, volume=net, shells=(c.manifold, *(h.manifold for h in holes)))
+        components.append(c)
+    return components, flat
 
 
 def components(region: m3.Manifold) -> tuple[m3.Manifold, ...]:
-    """The connected components of a region as the rules see them.
+    """The connected components of a region as the rules see them, as filled solids.
 
-    The pieces of ``region.decompose()``, merged when they touch (gap up to
-    TOUCH_TOLERANCE), since manifold3d separates solids meeting only at an edge or vertex.
+    The outer shells of ``region.decompose()`` (cavities belong to the shell around them),
+    merged when they touch (gap up to TOUCH_TOLERANCE), since manifold3d separates solids
+    meeting only at an edge or vertex. Flat pieces without volume are left out.
     """
-    pieces = _pieces(region)
+    pieces, _ = _pieces(region)
     groups = _touch_groups(pieces, list(range(len(pieces))))
     return tuple(_merge([pieces[i] for i in g]).manifold for g in groups)
 
 
 def _report(rule: str, parts: Sequence[_Component]) -> RemovedComponent:
     comp = _merge(parts)
-    volume, centroid = mesh_volume_centroid(comp.manifold)
-    if not volume > 0.0:
-        # No volume to weight by (degenerate pieces): the centre of their bounding box.
+    volume, moment = 0.0, np.zeros(3)
+    for shell in comp.shells:
+        v, m = _volume_moment(shell)
+        volume, moment = volume + v, moment + m
+    if volume > VOLUME_TOLERANCE:
+        centroid = moment / volume
+    else:
+        # No volume to weight by (flat pieces): the centre of their bounding box.
         centroid = comp.bbox[:3] / 2.0 + comp.bbox[3:] / 2.0
     return RemovedComponent(rule=rule, volume=comp.volume, centroid=centroid, mesh=comp.manifold)
 
@@ -864,63 +939,87 @@ def apply_plausibility(r2: m3.Manifold, ctx: PlausibilityContext) -> Plausibilit
     Each enabled rule (``ctx.params.<rule>``) is evaluated in ``RULE_ORDER``; a component is
     removed by the first rule that fires and reported with it.
 
-    Every rule is monotone (if it spares a set, it spares every superset), so a piece that
-    is kept on its own keeps every piece touching it; only groups of touching pieces that
-    would all be removed are judged again as one component.
+    Every rule is monotone (if it spares a set, it spares every superset), so a component
+    kept on its own keeps every component touching it; only groups of touching components
+    that would all be removed are judged again as one.
+
+    Flat pieces (volume within VOLUME_TOLERANCE of zero, slivers that boolean operations
+    leave behind) hold no space: when too_small is on and something else is removed, they
+    are dropped too and reported together as one too_small removal.
 
     Args:
         r2: The region R2 (world frame).
         ctx: Zone, parameters, support, known objects and the previous cycle.
 
     Returns:
-        R3, its pieces, and the removed components with rule, volume and centroid.
+        R3, its kept components, and the removed components with rule, volume and centroid.
 
     Raises:
-        GeometryError: If R2 or a boolean result is not a valid manifold.
+        GeometryError: If R2 or the resulting R3 is not a valid manifold.
     """
     if r2.status() != m3.Error.NoError:
         raise GeometryError(f"plausibility: R2 is not a valid manifold (status {r2.status().name})")
     if r2.is_empty():
         return PlausibilityResult(region=r2, kept=(), removed=())
     rules = [(name, _RULES[name]) for name in RULE_ORDER if getattr(ctx.params, name)]
-    pieces = _pieces(r2)
-    removed: list[RemovedComponent] = []
-    keep = [True] * len(pieces)
-    if ctx.params.too_small:
-        # Degenerate pieces (flat slivers that boolean operations leave behind) hold no
-        # space: removed as one too_small report, and never used to connect other pieces.
-        flat = [i for i, p in enumerate(pieces) if abs(p.volume) <= VOLUME_TOLERANCE]
-        if flat:
-            removed.append(_report("too_small", [pieces[i] for i in flat]))
-            for i in flat:
-                keep[i] = False
-            solid = [i for i, p in enumerate(pieces) if keep[i]]
-            pieces = [pieces[i] for i in solid]
-            keep = [True] * len(pieces)
+    pieces, flat = _pieces(r2)
     first = [_first_rule(p, rules, ctx) if rules else None for p in pieces]
     keep = [rule is None for rule in first]
-    candidates = [i for i, rule in enumerate(first) if rule is not None]
-    for group in _touch_groups(pieces, candidates):
-        if any(keep[i] for i in group):
-            for i in group:
-                keep[i] = True
-            continue
-        comp = _merge([pieces[i] for i in group])
-        rule = first[group[0]] if len(group) == 1 else _first_rule(comp, rules, ctx)
+    removed_groups: list[tuple[str, list[int]]] = []
+    for group in _touch_groups(pieces, [i for i, rule in enumerate(first) if rule is not None]):
+        rule = None
+        if not any(keep[i] for i in group):
+            rule = first[group[0]] if len(group) == 1 else _first_rule(_merge([pieces[i] for i in group]), rules, ctx)
         if rule is None:
             for i in group:
                 keep[i] = True
-            continue
-        removed.append(_report(rule, [comp]))
-    kept = tuple(p.manifold for p, k in zip(pieces, keep, strict=True) if k)
+        else:
+            removed_groups.append((rule, group))
+    if not removed_groups:
+        return PlausibilityResult(region=r2, kept=tuple(p.manifold for p in pieces), removed=())
+
+    with_cavities = any(len(p.shells) > 1 for p, k in zip(pieces, keep, strict=True) if k)
+    if with_cavities:
+        # Uniting outer shells would fill the cavities (the robot or an obstacle inside):
+        # subtract the removed solids from R2 instead, which is exact but slower. A removed
+        # solid that encloses a kept component (in a cavity) stays.
+        kept_parts = [p for p, k in zip(pieces, keep, strict=True) if k]
+        still_removed = []
+        for rule, group in removed_groups:
+            if _encloses_any(_merge([pieces[i] for i in group]), kept_parts):
+                for i in group:
+                    keep[i] = True
+            else:
+                still_removed.append((rule, group))
+        removed_groups = still_removed
+    kept = [p for p, k in zip(pieces, keep, strict=True) if k]
+    removed = [_report(rule, [pieces[i] for i in group]) for rule, group in removed_groups]
     if not removed:
-        region = r2
-    elif len(kept) == 1:
-        region = kept[0]
-    elif kept:
-        region = m3.Manifold.batch_boolean(list(kept), m3.OpType.Add)
+        return PlausibilityResult(region=r2, kept=tuple(p.manifold for p in pieces), removed=())
+    if with_cavities:
+        region = r2 - m3.Manifold.batch_boolean([r.mesh for r in removed], m3.OpType.Add)
     else:
-        region = m3.Manifold()
+        if flat and ctx.params.too_small:
+            removed.append(_report("too_small", flat))
+        if len(kept) == 1:
+            region = kept[0].manifold
+        elif kept:
+            region = m3.Manifold.batch_boolean([p.manifold for p in kept], m3.OpType.Add)
+        else:
+            region = m3.Manifold()
     if region.status() != m3.Error.NoError:
-        raise GeometryError(f"plausibility: R3 union failed (status {region.status().name})")
-    return PlausibilityResult(region=region, kept=kept, removed=tuple(removed))
+        raise GeometryError(f"plausibility: building R3 failed (status {region.status().name})")
+    return PlausibilityResult(
+        region=region, kept=tuple(p.manifold for p in kept), removed=tuple(removed)
+    )
+
+
+def _encloses_any(solid: _Component, parts: Sequence[_Component]) -> bool:
+    """True if one of ``parts`` lies inside the filled outer solid of ``solid``."""
+    for part in parts:
+        lo, hi = part.bbox[:3], part.bbox[3:]
+        if np.all(solid.bbox[:3] <= lo) and np.all(solid.bbox[3:] >= hi):
+            if solid.winding(part.vertices[:1])[0] > 0.5:
+                return True
+    return False
+

@@ -544,3 +544,53 @@ def test_touch_agrees_with_min_gap(a, size_a, offset, yaw, sphere) -> None:
     expect = gap <= pl.TOUCH_TOLERANCE
     got = pl._touch(pl._Component(first), pl._Component(second))
     assert got == expect, (gap, got)
+
+
+# ----------------------------------------------------------------------------- cavities
+
+
+def _hollow(lo, hi, wall: float) -> m3.Manifold:
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    return box(lo, hi) - box(lo + wall, hi - wall)
+
+
+def test_removal_keeps_the_cavities_of_kept_components() -> None:
+    # A big component on the floor with the robot's body as a cavity inside, and a blob.
+    hollow = _hollow((3, 3, 0), (4, 4, 2), 0.2)
+    blob = box((1, 4, 1.5), (1.3, 4.3, 1.8))
+    r2 = union(hollow, blob)
+    assert sorted(round(p.volume(), 6) for p in r2.decompose()) == pytest.approx(
+        sorted([2.0, -0.6 * 0.6 * 1.6, 0.027])
+    )
+    result = apply_plausibility(r2, ctx_for())
+    assert [r.rule for r in result.removed] == ["flying"]
+    assert result.region.volume() == pytest.approx(hollow.volume(), rel=1e-9)
+    assert (result.region ^ box((3.3, 3.3, 0.5), (3.7, 3.7, 1.5))).is_empty()
+
+
+def test_cavity_counts_in_the_net_volume() -> None:
+    # 12 cm box with a 11.6 cm cavity: 0.0017 m^3 outside, 0.00014 m^3 net.
+    shell = _hollow((3, 3, 0), (3.12, 3.12, 0.12), 0.002)
+    result = apply_plausibility(shell, ctx_for())
+    assert [r.rule for r in result.removed] == ["too_small"]
+    assert result.removed[0].volume == pytest.approx(shell.volume(), rel=1e-9)
+    np.testing.assert_allclose(result.removed[0].centroid, [3.06, 3.06, 0.06], atol=1e-9)
+
+
+def test_removed_shell_around_a_kept_island_stays() -> None:
+    """A removed solid whose cavity holds a kept component is not cut out of R2."""
+    params = PlausibilityParams(flying=False, too_thin=False, min_volume=0.01)
+    shell = _hollow((1.0, 3.0, 0.0), (1.5, 3.5, 0.5), 0.005)  # net 0.0074 m^3: too small
+    island = box((1.1, 3.1, 0.1), (1.4, 3.4, 0.4))  # 0.027 m^3 in the cavity
+    hollow = _hollow((3, 3, 0), (4, 4, 2), 0.2)  # a kept component with a cavity
+    speck = box((5, 5, 0), (5.1, 5.1, 0.05))  # too small, removed
+    r2 = union(shell, island, hollow, speck)
+    result = apply_plausibility(r2, ctx_for(params=params))
+    assert [r.rule for r in result.removed] == ["too_small"]
+    assert result.removed[0].volume == pytest.approx(0.1 * 0.1 * 0.05)
+    assert result.region.volume() == pytest.approx(r2.volume() - 0.1 * 0.1 * 0.05, rel=1e-9)
+    # Without the hollow component the fast path unites the kept parts: the shell goes.
+    r2b = union(shell, island, speck)
+    result_b = apply_plausibility(r2b, ctx_for(params=params))
+    assert sorted(r.rule for r in result_b.removed) == ["too_small", "too_small"]
+    assert result_b.region.volume() == pytest.approx(island.volume(), rel=1e-9)
