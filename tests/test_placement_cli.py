@@ -168,3 +168,22 @@ def test_quaternion_round_trip_and_toml_writer():
     import tomllib
 
     assert tomllib.loads(text) == {"a": 1, "t": {"x": [1.0, 2.0], "s": "q\""}, "arr": [{"b": {"c": True}}]}
+
+
+def test_place_on_a_dask_scheduler(cell_file: Path, tmp_path: Path, capsys):
+    distributed = pytest.importorskip("dask.distributed")
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(
+        n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None
+    ) as cluster:
+        code = run(
+            str(cell_file), "--budget-evals", "6", "--grid", "12,12,8", "--scenes", "1",
+            "--scheduler", cluster.scheduler_address, "--out", str(out), "--no-progress",
+        )
+    assert code == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["settings"]["scheduler"].startswith("inproc://")
+    assert report["runs"][0]["evaluations"] == 6
+    with pytest.raises(PolyhullError, match="Dask scheduler"):
+        run(str(cell_file), "--budget-evals", "2", "--scheduler", "nonsense://host:1",
+            "--out", str(out), "--no-progress")

@@ -134,6 +134,8 @@ def register(subparsers: Any) -> None:
                    help="render every S-th pixel (default 1: full resolution, as the paper)")
     p.add_argument("--method", choices=("cma-es", "random"), default="cma-es",
                    help="optimiser (random: the uniform random search baseline)")
+    p.add_argument("--sigma0", type=float, default=0.25, metavar="S",
+                   help="initial CMA-ES step size, parameters normalised to [0, 1] (default 0.25)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 
@@ -143,12 +145,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from ..cellfile import load_cell
     from ..placement.objectives import ObjectiveParams, PlacementProblem, evaluate_cameras
-    from ..placement.optimizer import (
-        CameraParameterisation,
-        StopCriteria,
-        make_executor,
-        optimize,
-    )
+    from ..placement.optimizer import StopCriteria, make_executor, optimize_counts
     from ..placement.report import (
         build_report,
         plot_convergence,
@@ -191,36 +188,28 @@ def _run(args: argparse.Namespace) -> int:
 
     total = None if max_evals is None else max_evals * len(counts)
     bar = tqdm(total=total, unit="eval", disable=args.no_progress, file=sys.stderr, dynamic_ncols=True)
-    results = []
     try:
         with make_executor(args.workers, args.scheduler) as executor:
-            for count in counts:
-                param = CameraParameterisation.for_cell(cell, count, args.vary_fov)
 
-                def progress(n: int, value: float, best: float, _count: int = count) -> None:
-                    bar.update(1)
-                    bar.set_postfix_str(f"{_count} cams, best {args.objective} = {best:.4g}")
+            def progress(count: int, n: int, value: float, best: float) -> None:
+                bar.update(1)
+                bar.set_postfix_str(f"{count} cams, best {args.objective} = {best:.4g}")
 
-                results.append(
-                    optimize(
-                        problem,
-                        param,
-                        args.objective,
-                        stop,
-                        executor,
-                        seed=args.seed,
-                        x0=param.encode(cell.cameras),
-                        method=args.method,
-                        callback=progress,
-                    )
-                )
+            chosen, results = optimize_counts(
+                problem,
+                cell,
+                counts,
+                args.objective,
+                stop,
+                executor,
+                seed=args.seed,
+                vary_fov=args.vary_fov,
+                callback=progress,
+                method=args.method,
+                sigma0=args.sigma0,
+            )
     finally:
         bar.close()
-    chosen = min(results, key=lambda r: (r.best_value, len(r.cameras)))
-    if stop.eps is not None:
-        reaching = [r for r in results if r.gap < stop.eps]
-        if reaching:
-            chosen = min(reaching, key=lambda r: len(r.cameras))
 
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
@@ -234,6 +223,7 @@ def _run(args: argparse.Namespace) -> int:
         "camera_counts": counts,
         "vary_fov": args.vary_fov,
         "method": args.method,
+        "sigma0": args.sigma0,
     }
     report = build_report(cell, problem, before, chosen, results, settings)
     stem = Path(args.cell).stem

@@ -429,7 +429,7 @@ def make_executor(workers: int = 1, scheduler: str | None = None) -> Iterator[cf
             raise MissingExtraError("distributed placement (--scheduler)", "placement") from exc
         try:
             client = Client(scheduler, timeout=10)
-        except (OSError, TimeoutError) as exc:
+        except (OSError, TimeoutError, ValueError) as exc:
             raise PolyhullError(f"cannot connect to the Dask scheduler at {scheduler!r}: {exc}") from None
         try:
             yield client.get_executor()
@@ -549,6 +549,10 @@ def optimize(
         raise PolyhullError(f"unknown objective {objective!r}; choose one of {list(OBJECTIVES)}")
     if method not in ("cma-es", "random"):
         raise PolyhullError(f"unknown method {method!r}; choose 'cma-es' or 'random'")
+    if not (np.isfinite(sigma0) and 0 < sigma0 <= 1):
+        raise PolyhullError(f"sigma0 must be in (0, 1] (normalised units), got {sigma0!r}")
+    if popsize is not None and popsize < 2:
+        raise PolyhullError(f"popsize must be >= 2, got {popsize}")
     stop = stop or StopCriteria()
     executor = executor or InlineExecutor()
     optimum = prepare(problem).optimum
@@ -656,6 +660,8 @@ def optimize_counts(
     seed: int = 0,
     vary_fov: bool = False,
     callback: Callable[[int, int, float, float], None] | None = None,
+    method: Method = "cma-es",
+    sigma0: float = 0.25,
 ) -> tuple[OptimizationResult, list[OptimizationResult]]:
     """One optimisation per camera count (the outer loop over counts).
 
@@ -674,6 +680,8 @@ def optimize_counts(
         seed: Seed of the sampler.
         vary_fov: Also optimise the focal length.
         callback: Called after each evaluation with (count, evaluations, value, best).
+        method: ``"cma-es"``, or ``"random"`` for the random search baseline.
+        sigma0: Initial CMA-ES step size in the normalised [0, 1] units.
 
     Returns:
         The chosen result and the results of all counts (in the order of ``counts``).
@@ -697,6 +705,8 @@ def optimize_counts(
                 executor,
                 seed,
                 x0=param.encode(cell.cameras),
+                sigma0=sigma0,
+                method=method,
                 callback=cb,
             )
         )
