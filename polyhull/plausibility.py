@@ -6,10 +6,17 @@ possibly occupied space, so every rule here is written to err on one side only: 
 is approximate, the approximation can only make the rule fire *less* often (keep more).
 
 Components:
-    The components are the pieces of ``R2.decompose()``, merged when they touch (gap up
-    to ``TOUCH_TOLERANCE``): manifold3d splits solids that meet only along an edge or at a
-    vertex into separate pieces, and block-shaped camera regions produce such contacts;
-    pieces that touch can be parts of one person and are judged together.
+    ``R2.decompose()`` returns every boundary shell on its own. A shell of negative volume
+    is a cavity (the robot or an obstacle enclosed by R2) and belongs to the smallest outer
+    shell around it; a component is an outer shell with its cavities, and its volume is the
+    net volume. The rules see a component as the solid inside its outer shell, which can
+    only make them fire less often. Components that touch (gap up to
+    ``TOUCH_TOLERANCE``; manifold3d splits solids meeting only along an edge or at a vertex)
+    can be parts of one person and are judged together: every rule is monotone (what it
+    spares, it spares in any superset), so a component kept on its own keeps everything
+    touching it, and a group of touching components that would all be removed is judged
+    again as one. Shells whose volume is within ``VOLUME_TOLERANCE`` of zero are flat
+    slivers left by boolean operations; they hold no space and never connect components.
 
 The rules, in the order they are evaluated (``RULE_ORDER``; cheapest first). The set of
 removed components does not depend on the order, only the rule each removal is reported
@@ -175,6 +182,10 @@ class PlausibilityContext:
     previous: tuple[m3.Manifold, ...] | None = None
     dt: float | None = None
     occlusion: m3.Manifold | None = None
+    # Solids of the context wrapped once with their cached mesh arrays (see _solid).
+    _solids: dict[tuple[str, int], _Component] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "known_objects", tuple(self.known_objects))
@@ -261,15 +272,6 @@ def mesh_volume_centroid(m: m3.Manifold) -> tuple[float, ArrayF64]:
     if not volume > 0.0:
         return max(volume, 0.0), np.full(3, np.nan)
     return volume, moment / volume
-
-
-def _within(a: m3.Manifold, b: m3.Manifold, distance: float) -> bool:
-    """True if the solids ``a`` and ``b`` are at most ``distance`` [m] apart (or overlap)."""
-    if _bbox_gap(_bbox(a), _bbox(b)) > distance + TOUCH_TOLERANCE:
-        return False
-    # min_gap returns 0 for overlapping or nested solids and the search length when
-    # nothing is closer than it.
-    return bool(a.min_gap(b, distance + 2.0 * TOUCH_TOLERANCE) <= distance + TOUCH_TOLERANCE)
 
 
 def _geometry_key(m: m3.Manifold, extra: float) -> bytes:
@@ -487,8 +489,17 @@ def touches_boundary(component: m3.Manifold | _Component, zone: Zone, eps: float
     return bool(np.any(lo[:2] <= zmin[:2] + tol) or np.any(hi >= zmax - tol))
 
 
+def _solid(ctx: PlausibilityContext, kind: str, index: int, manifold: m3.Manifold) -> _Component:
+    """``manifold`` (a solid of the context) wrapped once per context."""
+    key = (kind, index)
+    solid = ctx._solids.get(key)
+    if solid is None:
+        solid = ctx._solids[key] = _Component(manifold)
+    return solid
+
+
 def _touches_entry_area(c: _Component, ctx: PlausibilityContext, eps: float) -> bool:
-    for area in ctx.params.entry_areas:
+    for k, area in enumerate(ctx.params.entry_areas):
         lo, hi = np.asarray(area.min), np.asarray(area.max)
         if _bbox_gap(c.bbox, np.concatenate([lo, hi])) > eps + TOUCH_TOLERANCE:
             continue
@@ -496,13 +507,15 @@ def _touches_entry_area(c: _Component, ctx: PlausibilityContext, eps: float) -> 
         if np.any(np.all((c.vertices >= grown_lo) & (c.vertices <= grown_hi), axis=1)):
             return True
         box = m3.Manifold.cube(tuple(hi - lo)).translate(tuple(lo))
-        if _within(c.manifold, box, eps):
+        if _within(c, _solid(ctx, "entry", k, box), eps):
             return True
     return False
 
 
 def _touches_occlusion(c: _Component, ctx: PlausibilityContext, eps: float) -> bool:
-    return ctx.occlusion is not None and _within(c.manifold, ctx.occlusion, eps)
+    if ctx.occlusion is None or ctx.occlusion.is_empty():
+        return False
+    return _within(c, _solid(ctx, "occlusion", 0, ctx.occlusion), eps)
 
 
 def _supported_by(c: _Component, solid: m3.Manifold | None, eps: float) -> bool:
@@ -527,15 +540,16 @@ def _supported_by(c: _Component, solid: m3.Manifold | None, eps: float) -> bool:
     below = solid ^ prism
     if below.is_empty():
         return False
-    return _within(c.manifold, below, eps + margin)
+    return _within(c, _Component(below), eps + margin)
 
 
 def _near_previous(c: _Component, ctx: PlausibilityContext, reach: float) -> bool:
     assert ctx.previous is not None
-    for prev in ctx.previous:
-        if _within(c.manifold, prev, reach):
-            return True
-    return False
+    return any(
+        _within(c, _solid(ctx, "previous", k, prev), reach)
+        for k, prev in enumerate(ctx.previous)
+        if not prev.is_empty()
+    )
 
 
 def _spared_as_entering(c: _Component, ctx: PlausibilityContext) -> bool:
@@ -670,42 +684,60 @@ _RULES: dict[str, Callable[[_Component, PlausibilityContext], bool]] = {
 
 # --------------------------------------------------------------------------- components
 
-def _touch(a: _Component, b: _Component) -> bool:
-    """True if two disjoint pieces are at most TOUCH_TOLERANCE apart.
+def _within(a: _Component, b: _Component, distance: float, *, nested: bool = True) -> bool:
+    """True if the solids ``a`` and ``b`` come within ``distance`` [m] of each other.
 
-    Exact up to rounding: the distance between their surfaces is the least distance between
-    a pair of triangles, computed for the pairs whose boxes come within the tolerance.
+    Exact up to rounding: the least distance between a triangle of ``a`` and one of ``b``,
+    over the pairs that the triangles' boxes and the two convex hulls do not separate. With
+    ``nested``, a solid lying inside the other (surfaces apart) counts as within any
+    distance; pieces of one region are disjoint and need not check that.
     """
-    tol = TOUCH_TOLERANCE
-    if _bbox_gap(a.bbox, b.bbox) > tol:
+    if _bbox_gap(a.bbox, b.bbox) > distance + TOUCH_TOLERANCE:
         return False
-    # Keep the triangles of each piece that come near the other piece's box.
-    near_a = _boxes_meet(a.triangle_boxes, b.bbox[:3] - tol, b.bbox[3:] + tol)
-    near_b = _boxes_meet(b.triangle_boxes, a.bbox[:3] - tol, a.bbox[3:] + tol)
-    if not (near_a.any() and near_b.any()):
+    reach = distance + TOUCH_TOLERANCE
+    # Keep the triangles of each solid that come near the other's box and hull.
+    near_a = _boxes_meet(a.triangle_boxes, b.bbox[:3] - reach, b.bbox[3:] + reach)
+    near_b = _boxes_meet(b.triangle_boxes, a.bbox[:3] - reach, a.bbox[3:] + reach)
+    if near_a.any():
+        near_a[near_a] = ~_separated_by_planes(a.triangles[near_a], b.hull_planes, reach)
+    if near_b.any():
+        near_b[near_b] = ~_separated_by_planes(b.triangles[near_b], a.hull_planes, reach)
+    if near_a.any() and near_b.any():
+        ta, tb = a.triangles[near_a], b.triangles[near_b]
+        ba, bb = a.triangle_boxes[near_a], b.triangle_boxes[near_b]
+        if len(ta) * len(tb) > _MAX_TRIANGLE_PAIRS:
+            gap = a.manifold.min_gap(b.manifold, reach + TOUCH_TOLERANCE)
+            return bool(gap <= reach)
+        chunk = max(1, _PAIR_CHUNK // len(tb))
+        for start in range(0, len(ta), chunk):
+            ca, cb = ta[start : start + chunk], ba[start : start + chunk]
+            ia, ib = np.nonzero(
+                np.all(cb[:, None, :3] <= bb[None, :, 3:] + reach, axis=2)
+                & np.all(bb[None, :, :3] <= cb[:, None, 3:] + reach, axis=2)
+            )
+            if len(ia) == 0:
+                continue
+            t1, t2 = ca[ia], tb[ib]
+            # Pairs separated by the plane of either triangle are farther apart than reach.
+            keep = ~(_beyond_plane(t1, t2, reach) | _beyond_plane(t2, t1, reach))
+            if keep.any() and _triangle_distances(t1[keep], t2[keep]).min() <= reach:
+                return True
+    if not nested:
         return False
-    # Of the bigger piece, keep the triangles that no face plane of the smaller piece's hull
-    # separates from it by more than the tolerance.
-    if a.manifold.num_tri() < b.manifold.num_tri():
-        near_b[near_b] = ~_separated_by_planes(b.triangles[near_b], a.hull_planes, tol)
-    else:
-        near_a[near_a] = ~_separated_by_planes(a.triangles[near_a], b.hull_planes, tol)
-    if not (near_a.any() and near_b.any()):
+    return _inside(a, b) or _inside(b, a)
+
+
+def _inside(inner: _Component, outer: _Component) -> bool:
+    """True if a vertex of ``inner`` lies inside the solid ``outer`` (winding number)."""
+    lo, hi = inner.bbox[:3], inner.bbox[3:]
+    if np.any(outer.bbox[:3] > lo) or np.any(outer.bbox[3:] < hi):
         return False
-    ta, tb = a.triangles[near_a], b.triangles[near_b]
-    ba, bb = a.triangle_boxes[near_a], b.triangle_boxes[near_b]
-    if len(ta) * len(tb) > _MAX_TRIANGLE_PAIRS:
-        return bool(a.manifold.min_gap(b.manifold, 2.0 * tol) <= tol)
-    ia, ib = np.nonzero(
-        np.all(ba[:, None, :3] <= bb[None, :, 3:] + tol, axis=2)
-        & np.all(bb[None, :, :3] <= ba[:, None, 3:] + tol, axis=2)
-    )
-    t1, t2 = ta[ia], tb[ib]
-    # Pairs separated by the plane of either triangle are farther apart than the tolerance.
-    keep = ~(_beyond_plane(t1, t2, tol) | _beyond_plane(t2, t1, tol))
-    if not keep.any():
-        return False
-    return bool(_triangle_distances(t1[keep], t2[keep]).min() <= tol)
+    return bool(outer.winding(inner.vertices[:1])[0] > 0.5)
+
+
+def _touch(a: _Component, b: _Component) -> bool:
+    """True if two disjoint pieces of one region touch (gap up to TOUCH_TOLERANCE)."""
+    return _within(a, b, 0.0, nested=False)
 
 
 def _separated_by_planes(triangles: ArrayF64, planes: ArrayF64, gap: float) -> ArrayBool:
@@ -732,8 +764,10 @@ def _beyond_plane(t1: ArrayF64, t2: ArrayF64, gap: float) -> ArrayBool:
     return ok & ((side.min(axis=1) > gap) | (side.max(axis=1) < -gap))
 
 
-# Above this many triangle pairs, _touch asks manifold3d's min_gap instead.
-_MAX_TRIANGLE_PAIRS = 2_000_000
+# Above this many candidate triangle pairs, _within asks manifold3d's min_gap instead.
+_MAX_TRIANGLE_PAIRS = 50_000_000
+# Triangle pairs whose boxes are compared at once.
+_PAIR_CHUNK = 200_000
 
 
 def _boxes_meet(boxes: ArrayF64, lo: ArrayF64, hi: ArrayF64) -> ArrayBool:

@@ -594,3 +594,24 @@ def test_removed_shell_around_a_kept_island_stays() -> None:
     result_b = apply_plausibility(r2b, ctx_for(params=params))
     assert sorted(r.rule for r in result_b.removed) == ["too_small", "too_small"]
     assert result_b.region.volume() == pytest.approx(island.volume(), rel=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    centre=st.tuples(st.floats(-0.5, 0.5), st.floats(-0.5, 0.5), st.floats(-0.5, 0.5)),
+    distance=st.floats(0.0, 0.3),
+    yaw=st.floats(0.0, 90.0),
+    sphere=st.booleans(),
+)
+def test_within_agrees_with_min_gap(centre, distance, yaw, sphere) -> None:
+    """_within(a, b, d) is min_gap(a, b) <= d, nested solids included."""
+    big = box((-0.3, -0.3, -0.3), (0.3, 0.3, 0.3))
+    small = m3.Manifold.sphere(0.08, 20) if sphere else box((-0.05, -0.1, -0.05), (0.05, 0.1, 0.05))
+    small = small.rotate((0.0, 0.0, yaw)).translate(centre)
+    if not (big ^ small).is_empty() and not (small - big).is_empty():
+        return  # crossing surfaces: not a configuration the rules meet
+    gap = big.min_gap(small, 2.0)
+    if abs(gap - distance) < 1e-6:
+        return
+    got = pl._within(pl._Component(big), pl._Component(small), distance)
+    assert got == (gap <= distance), (gap, distance)
