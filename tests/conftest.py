@@ -8,8 +8,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import manifold3d as m3
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from polyhull.camera import Camera, Intrinsics, look_at_rotation
 from polyhull.cell import Cell
@@ -64,3 +66,33 @@ def make_camera(
     T[:3, :3] = look_at_rotation(np.array(position, float), np.array(target, float))
     T[:3, 3] = position
     return Camera(name="test", kind=kind, intrinsics=k, T_world_camera=T, near=near, far=far, noise=noise)  # type: ignore[arg-type]
+
+
+def manifold_contains(
+    region: m3.Manifold, points: np.ndarray, half: float = 1e-6, chunk: int = 800
+) -> np.ndarray:
+    """Which points (N, 3) lie inside a manifold (within ``half`` [m] of it).
+
+    One boolean: the region intersected with a tiny cube around every point, then the
+    pieces of the result mapped back to their points. Independent of ray casting (trimesh's
+    ``contains`` misreports points for boolean results with many coplanar faces).
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    inside = np.zeros(len(points), dtype=bool)
+    if region.is_empty() or len(points) == 0:
+        return inside
+    bb = np.asarray(region.bounding_box(), dtype=np.float64)
+    cand = np.nonzero(np.all((points >= bb[:3] - half) & (points <= bb[3:] + half), axis=1))[0]
+    cube = m3.Manifold.cube((2 * half,) * 3, True)
+    for start in range(0, len(cand), chunk):  # decompose() grows superlinearly: chunk
+        idx = cand[start : start + chunk]
+        cubes = m3.Manifold.compose([cube.translate(tuple(points[i])) for i in idx])
+        pieces = (region ^ cubes).decompose()
+        if not pieces:
+            continue
+        centers = np.array(
+            [np.asarray(p.bounding_box(), dtype=np.float64).reshape(2, 3).mean(axis=0) for p in pieces]
+        )
+        _, nearest = cKDTree(points[idx]).query(centers)
+        inside[idx[nearest]] = True
+    return inside
