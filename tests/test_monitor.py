@@ -1,0 +1,186 @@
+"""Monitor fault paths (SPEC section 4): every fault stops the robot, is named, and latches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import polyhull.monitor as monitor_module
+from polyhull.errors import GeometryError
+from polyhull.frames import DepthFrame
+from polyhull.monitor import Monitor, Verdict
+from polyhull.simulator import Simulator
+
+_EXACT: dict[str, np.ndarray] = {}
+
+
+@pytest.fixture(autouse=True)
+def _exact_depth(small_sim: Simulator) -> None:
+    """Noise-free depth of the empty cell with the robot at its default q (cached)."""
+    if not _EXACT:
+        _EXACT.update(small_sim.render_exact())
+
+
+def _clean(monitor: Monitor, stamp: float, offset: float = 0.0) -> dict[str, DepthFrame]:
+    """Noise-free frames of the empty cell with the robot (+ ``offset`` [m]) at ``stamp`` [s]."""
+    out = {}
+    for s in monitor.statics:
+        exact = _EXACT[s.camera.name]
+        depth = np.where(np.isfinite(exact), exact + offset, np.inf).astype(np.float32)
+        out[s.camera.name] = DepthFrame(camera=s.camera.name, depth=depth, stamp=stamp)
+    return out
+
+
+def _q(monitor: Monitor) -> np.ndarray:
+    return np.asarray(monitor.cell.robot.q, dtype=np.float64)  # type: ignore[union-attr]
+
+
+def _assert_fault(v: Verdict, *words: str) -> None:
+    assert v.speed_scale == 0.0
+    assert v.allowed_speed == 0.0
+    assert v.faults, "expected a fault"
+    text = " | ".join(v.faults).lower()
+    for w in words:
+        assert w.lower() in text, (w, v.faults)
+
+
+def _assert_latches_then_resets(monitor: Monitor, stamp: float, *words: str) -> None:
+    v = monitor.step(_clean(monitor, stamp), _q(monitor), stamp=stamp)
+    _assert_fault(v, *words)
+    monitor.reset()
+    v = monitor.step(_clean(monitor, stamp + 0.1), _q(monitor), stamp=stamp + 0.1)
+    assert v.faults == ()
+
+
+def test_clean_frame_no_fault(fresh_monitor: Monitor) -> None:
+    v = fresh_monitor.step(_clean(fresh_monitor, 1.0), _q(fresh_monitor), stamp=1.0)
+    assert v.faults == ()
+    assert v.min_distance > 0.0
+    assert "total" in v.timings
+
+
+def _first(monitor: Monitor) -> str:
+    return monitor.statics[0].camera.name
+
+
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing",
+        "stale",
+        "wrong_shape",
+        "not_a_frame",
+        "unknown_camera",
+        "q_none",
+        "q_limits",
+        "q_nan",
+        "stamp_nan",
+        "stamp_inf",
+        "all_missing",
+        "camera_moved",
+        "frames_not_mapping",
+    ],
+)
+def test_single_cycle_faults(fresh_monitor: Monitor, case: str) -> None:
+    m = fresh_monitor
+    cam = _first(m)
+    frames: object = _clean(m, 1.0)
+    q: np.ndarray | None = _q(m)
+    stamp = 1.0
+    words: tuple[str, ...]
+    if case == "missing":
+        del frames[cam]  # type: ignore[attr-defined]
+        words = (cam, "missing")
+    elif case == "stale":
+        frames[cam] = DepthFrame(camera=cam, depth=frames[cam].depth, stamp=0.5)  # type: ignore[index]
+        words = (cam, "stale")
+    elif case == "wrong_shape":
+        frames[cam] = DepthFrame(camera=cam, depth=np.ones((10, 12), np.float32), stamp=1.0)  # type: ignore[index]
+        words = (cam, "shape")
+    elif case == "not_a_frame":
+        frames[cam] = frames[cam].depth  # type: ignore[index]
+        words = (cam, "DepthFrame")
+    elif case == "unknown_camera":
+        frames["nobody"] = DepthFrame(camera="nobody", depth=np.ones((4, 4), np.float32), stamp=1.0)  # type: ignore[index]
+        words = ("nobody", "unknown")
+    elif case == "q_none":
+        q = None
+        words = ("joint state", "missing")
+    elif case == "q_limits":
+        q = q.copy()  # type: ignore[union-attr]
+        q[1] = 100.0
+        words = ("joint state", "invalid")
+    elif case == "q_nan":
+        q = q.copy()  # type: ignore[union-attr]
+        q[0] = np.nan
+        words = ("joint state", "invalid")
+    elif case == "stamp_nan":
+        stamp = float("nan")
+        words = ("stamp", "finite")
+    elif case == "stamp_inf":
+        stamp = float("inf")
+        words = ("stamp", "finite")
+    elif case == "all_missing":
+        frames = {}
+        words = ("coverage lost",)
+    elif case == "camera_moved":
+        frames = _clean(m, 1.0, offset=0.5)
+        words = ("moved",)
+    elif case == "frames_not_mapping":
+        frames = list(frames.values())  # type: ignore[attr-defined]
+        words = ("mapping",)
+    v = m.step(frames, q, stamp=stamp)  # type: ignore[arg-type]
+    _assert_fault(v, *words)
+    _assert_latches_then_resets(m, 5.0, *words)
+
+
+def test_duplicated_frame(fresh_monitor: Monitor) -> None:
+    m = fresh_monitor
+    frames = _clean(m, 1.0)
+    assert m.step(frames, _q(m), stamp=1.0).faults == ()
+    v = m.step(frames, _q(m), stamp=1.05)
+    _assert_fault(v, "duplicated")
+    _assert_latches_then_resets(m, 5.0, "duplicated")
+
+
+def test_out_of_order_frame(fresh_monitor: Monitor) -> None:
+    m = fresh_monitor
+    assert m.step(_clean(m, 1.0), _q(m), stamp=1.0).faults == ()
+    v = m.step(_clean(m, 0.95), _q(m), stamp=1.05)
+    _assert_fault(v, "out of order")
+    _assert_latches_then_resets(m, 5.0, "out of order")
+
+
+def test_stale_joint_state(fresh_monitor: Monitor) -> None:
+    m = fresh_monitor
+    v = m.step(_clean(m, 1.0), _q(m), stamp=1.0, q_stamp=0.5)
+    _assert_fault(v, "joint state", "stale")
+    _assert_latches_then_resets(m, 5.0, "stale")
+
+
+def test_contamination(fresh_monitor: Monitor) -> None:
+    m = fresh_monitor
+    cam = _first(m)
+    assert m.step(_clean(m, 1.0), _q(m), stamp=1.0).faults == ()
+    frames = _clean(m, 1.1)
+    depth = frames[cam].depth.copy()
+    rng = np.random.default_rng(0)
+    depth[rng.uniform(size=depth.shape) < 0.5] = 0.0
+    frames[cam] = DepthFrame(camera=cam, depth=depth, stamp=1.1)
+    v = m.step(frames, _q(m), stamp=1.1)
+    _assert_fault(v, cam, "contamination")
+    _assert_latches_then_resets(m, 5.0, "contamination")
+
+
+@pytest.mark.parametrize("exc", [GeometryError("boom: degenerate"), RuntimeError("unexpected boom")])
+def test_exceptions_become_verdicts(fresh_monitor: Monitor, monkeypatch: pytest.MonkeyPatch, exc: Exception) -> None:
+    m = fresh_monitor
+
+    def broken(*args: object, **kwargs: object) -> None:
+        raise exc
+
+    monkeypatch.setattr(monitor_module, "depth_hull", broken)
+    v = m.step(_clean(m, 1.0), _q(m), stamp=1.0)
+    _assert_fault(v, type(exc).__name__, "boom")
+    monkeypatch.undo()
+    _assert_latches_then_resets(m, 5.0, "boom")
