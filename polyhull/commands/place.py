@@ -134,8 +134,8 @@ def register(subparsers: Any) -> None:
                    help="render every S-th pixel (default 1: full resolution, as the paper)")
     p.add_argument("--method", choices=("cma-es", "random"), default="cma-es",
                    help="optimiser (random: the uniform random search baseline)")
-    p.add_argument("--sigma0", type=float, default=0.25, metavar="S",
-                   help="initial CMA-ES step size, parameters normalised to [0, 1] (default 0.25)")
+    p.add_argument("--sigma0", type=float, default=0.15, metavar="S",
+                   help="initial CMA-ES step size, parameters normalised to [0, 1] (default 0.15)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run)
 

@@ -519,7 +519,7 @@ def optimize(
     executor: cf.Executor | None = None,
     seed: int = 0,
     x0: ArrayF64 | None = None,
-    sigma0: float = 0.25,
+    sigma0: float = 0.15,
     popsize: int | None = None,
     method: Method = "cma-es",
     callback: Callable[[int, float, float], None] | None = None,
@@ -661,7 +661,7 @@ def optimize_counts(
     vary_fov: bool = False,
     callback: Callable[[int, int, float, float], None] | None = None,
     method: Method = "cma-es",
-    sigma0: float = 0.25,
+    sigma0: float = 0.15,
 ) -> tuple[OptimizationResult, list[OptimizationResult]]:
     """One optimisation per camera count (the outer loop over counts).
 
