@@ -221,6 +221,15 @@ def test_free_depth_image_semantics():
     f, ch = free_depth_image(color, B, D)
     assert ch[0].tolist() == [False, True, True]
     assert f[0].tolist() == pytest.approx([4.0 - TAU, 0.3, 0.3])  # near: nothing free
+    # A background beyond the range reads "no return": free up to far - tau(far); a
+    # target within range in front of it is a change.
+    short = Camera("r", "depth", small.intrinsics, cam.T_world_camera,
+                   near=0.3, far=5.0, noise=0.0, tolerance_min=TAU)
+    B = np.array([[9.0, 9.0, 9.0]], dtype=np.float32)
+    D = np.array([[9.0, 4.0, 6.0]], dtype=np.float32)
+    f, ch = free_depth_image(short, B, D)
+    assert ch[0].tolist() == [False, True, False]
+    assert f[0].tolist() == pytest.approx([5.0 - TAU, 4.0 - TAU, 5.0 - TAU])
 
 
 def test_fuse_labels_rules():
@@ -377,8 +386,11 @@ def test_fast_path_matches_full_renders(position, pan_tilt, kind):
     st.tuples(st.floats(-np.pi, np.pi), st.floats(-0.5, np.pi / 2)),
     st.sampled_from([1, 2]),
 )
-def test_target_window_holds_every_target_pixel_in_range(position, pan_tilt, step):
-    from polyhull.placement.objectives import _render_targets_roi
+def test_windowed_renders_equal_full_renders(position, pan_tilt, step):
+    # Targets are traced only over the image window of their bounding box (cut to the
+    # part in front of the camera), and the reference one static mesh at a time over its
+    # own window, on an analytic floor: both must equal full renders, pixel for pixel.
+    from polyhull.placement.objectives import _render_reference, _render_window
     from polyhull.raycast import MeshCaster
 
     cam = small_camera("c", "depth", position, pan_tilt)
@@ -386,11 +398,11 @@ def test_target_window_holds_every_target_pixel_in_range(position, pan_tilt, ste
     lo, hi = TARGET.bounds
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     full = caster.depth(cam, step)
-    full[full > cam.far] = np.inf
-    window = _render_targets_roi(cam, caster, corners, step, full.shape)
+    window = _render_window(cam, caster, corners, step, full.shape)
     fast = np.full(full.shape, np.inf, dtype=np.float32)
     if window is not None:
         (rows, cols), depth = window
         fast[rows, cols] = depth
-        fast[fast > cam.far] = np.inf
     assert np.allclose(fast, full, rtol=1e-6)  # inf == inf where nothing is hit
+    reference = _render_reference(prepare(SMALL_PROBLEM), cam, step)
+    assert np.allclose(reference, render_depth(cam, [OBSTACLE], 0.0, step), rtol=1e-6)

@@ -241,14 +241,15 @@ def free_depth_image(
     evaluation uses the same definition of F as the reconstruction (paper section 4, item
     4): ``min(D, B) - tau(D)`` for a depth camera, and for a colour camera nothing along a
     changed pixel and ``B - tau(B)`` along an unchanged one, clipped to ``[near, far]``.
-    A pixel is changed when ``D < B - tau(D)`` (the engine's test) and ``D <= far`` (a
-    target beyond the range reads invalid and changes nothing).
+    A pixel is changed when ``D < B - tau(D)`` (the engine's test). ``D`` is what the
+    simulated sensor reports: a depth beyond ``far`` becomes +inf, "no return" (REP 117,
+    SPEC section 4), which frees the ray up to the rated range and changes nothing.
 
     Args:
         camera: The camera (its ``kind``, range and noise model).
         reference: (H', W') reference z-depth ``B`` [m], +inf where nothing is hit.
-        measured: (H', W') z-depth ``D`` with the targets present [m] (noise free), +inf
-            where nothing is hit.
+        measured: (H', W') z-depth ``D`` with the targets present [m] (noise free, as
+            ray cast), +inf where nothing is hit.
 
     Returns:
         ``(free_depth, changed)``: (H', W') float32 free depth ``f`` [m] (a voxel centre
@@ -261,10 +262,11 @@ def free_depth_image(
         raise GeometryError(
             f"camera '{camera.name}': reference shape {B.shape} differs from measured {D.shape}"
         )
-    # A target beyond the range reads invalid, as does the background behind it: no change.
-    in_range = np.isfinite(D) & (D <= camera.far)
+    # The simulated sensor: nothing within range returns +inf, "no return" (REP 117).
+    D = np.where(D > camera.far, np.inf, D)
+    finite_d = np.isfinite(D)
     with np.errstate(invalid="ignore"):
-        changed = in_range & (D < B - camera.tau(np.where(in_range, D, 0.0)))
+        changed = finite_d & (D < B - camera.tau(np.where(finite_d, D, 0.0)))
     free = free_depth(camera, D, B)
     return free.astype(np.float32), changed
 

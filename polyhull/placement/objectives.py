@@ -40,7 +40,7 @@ import trimesh
 from ..camera import Camera
 from ..cell import Cell
 from ..errors import GeometryError, PolyhullError
-from ..raycast import MeshCaster, StaticScene
+from ..raycast import MeshCaster
 from ..typed import ArrayBool, ArrayF32, ArrayF64
 from .labels import (
     PAPER_GRID,
@@ -319,7 +319,9 @@ class PreparedProblem:
 
     Attributes:
         problem: The problem.
-        static: Ray-casting scene of the floor and the static meshes.
+        static_casters: Per static mesh, its ray caster (each is traced only over the image
+            window of its own bounding box; the floor is analytic).
+        static_corners: Per static mesh, (8, 3) corners of its bounding box [m].
         static_mask: (N,) delta_s, voxels inside static meshes.
         target_masks: Per scene (N,) delta_t, voxels inside targets (and not static).
         target_casters: Per scene, the ray caster of its targets.
@@ -329,7 +331,8 @@ class PreparedProblem:
     """
 
     problem: PlacementProblem
-    static: StaticScene
+    static_casters: tuple[MeshCaster, ...]
+    static_corners: tuple[ArrayF64, ...]
     static_mask: ArrayBool
     target_masks: tuple[ArrayBool, ...]
     target_casters: tuple[MeshCaster, ...]
@@ -372,9 +375,7 @@ def _build(problem: PlacementProblem) -> PreparedProblem:
         if meshes:
             lo = np.min([m.bounds[0] for m in meshes], axis=0)
             hi = np.max([m.bounds[1] for m in meshes], axis=0)
-            corners.append(
-                np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            )
+            corners.append(_box_corners(lo, hi))
         else:
             corners.append(np.zeros((0, 3)))
     params = problem.params
@@ -392,7 +393,8 @@ def _build(problem: PlacementProblem) -> PreparedProblem:
     )
     return PreparedProblem(
         problem=problem,
-        static=StaticScene(statics, problem.floor_z),
+        static_casters=tuple(MeshCaster([m]) for m in statics),
+        static_corners=tuple(_box_corners(*m.bounds) for m in statics),
         static_mask=static_mask,
         target_masks=tuple(target_masks),
         target_casters=tuple(casters),
@@ -406,47 +408,49 @@ def _build(problem: PlacementProblem) -> PreparedProblem:
 _BOX_EDGES = np.array([(i, i | bit) for bit in (4, 2, 1) for i in range(8) if not i & bit])
 
 
-def _visible_box_points(camera: Camera, corners: ArrayF64) -> ArrayF64:
-    """Camera-frame vertices (M, 3) of the box ``corners`` clipped to ``1e-6 <= z <= far``.
+def _box_corners(lo: ArrayF64, hi: ArrayF64) -> ArrayF64:
+    """The 8 corners (8, 3) of the box [lo, hi], x slowest."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
 
-    Targets nearer than that cannot be projected and farther ones change nothing (a depth
-    beyond ``far`` is invalid in the reference as well). The vertices of a convex solid cut
-    by a slab are its corners inside the slab and its edges' crossings of the two planes.
+
+def _points_in_front(camera: Camera, corners: ArrayF64) -> ArrayF64:
+    """Camera-frame vertices (M, 3) of the box ``corners`` cut to ``z >= 1e-6`` (in front).
+
+    The vertices of a convex solid cut by a plane are its corners on the kept side and its
+    edges' crossings of the plane; the part behind the camera projects nowhere.
     """
     pc = camera.world_to_camera(corners)  # (8, 3)
-    lo, hi = 1e-6, camera.far
-    z = pc[:, 2]
-    points = [pc[(z >= lo) & (z <= hi)]]
+    plane = 1e-6
+    points = [pc[pc[:, 2] >= plane]]
     a, b = pc[_BOX_EDGES[:, 0]], pc[_BOX_EDGES[:, 1]]
-    for plane in (lo, hi):
-        da, db = a[:, 2] - plane, b[:, 2] - plane
-        cross = da * db < 0
-        if np.any(cross):
-            t = (da[cross] / (da[cross] - db[cross]))[:, None]
-            points.append(a[cross] + t * (b[cross] - a[cross]))
+    da, db = a[:, 2] - plane, b[:, 2] - plane
+    cross = da * db < 0
+    if np.any(cross):
+        t = (da[cross] / (da[cross] - db[cross]))[:, None]
+        points.append(a[cross] + t * (b[cross] - a[cross]))
     return np.concatenate(points)
 
 
-def _render_targets_roi(
+def _render_window(
     camera: Camera, caster: MeshCaster, corners: ArrayF64, step: int, shape: tuple[int, int]
 ) -> tuple[tuple[slice, slice], ArrayF32] | None:
-    """z-depth [m] of the targets over the image rectangle their bounding box projects to.
+    """z-depth [m] of meshes over the image rectangle their bounding box projects to.
 
     Args:
         camera: The camera.
-        caster: Ray caster of the targets.
-        corners: (8, 3) corners of the targets' axis-aligned bounding box [m], world.
+        caster: Ray caster of the meshes.
+        corners: (8, 3) corners of the meshes' axis-aligned bounding box [m], world.
         step: Pixel stride of the rendered image.
         shape: (H', W') of the rendered image.
 
     Returns:
-        None when the targets cannot change the image; otherwise the (rows, cols) slices
-        of the rendered image and the depth over them (+inf where no target is hit).
+        None when no pixel can see the meshes; otherwise the (rows, cols) slices of the
+        rendered image and the depth over them (+inf where nothing is hit).
     """
     if caster.is_empty or len(corners) == 0:
         return None
     k = camera.intrinsics
-    pc = _visible_box_points(camera, corners)
+    pc = _points_in_front(camera, corners)
     if len(pc) == 0:
         return None
     u = k.fx * pc[:, 0] / pc[:, 2] + k.cx
@@ -472,6 +476,29 @@ def _render_targets_roi(
     return (rows, cols), t.reshape(len(y), len(x)).astype(np.float32)
 
 
+def _render_reference(prep: PreparedProblem, camera: Camera, step: int) -> ArrayF32:
+    """Reference z-depth B [m] (H', W'): the floor plane, then each static mesh in its window.
+
+    The same image as :meth:`polyhull.raycast.StaticScene.render` (the first hit along a
+    ray is the minimum of the z-depths of the parts), traced over far fewer pixels.
+    """
+    k = camera.intrinsics
+    shape = (-(-k.height // step), -(-k.width // step))
+    R = camera.T_world_camera[:3, :3]
+    x = (np.arange(shape[1], dtype=np.float64) * step - k.cx) / k.fx
+    y = (np.arange(shape[0], dtype=np.float64) * step - k.cy) / k.fy
+    dz = R[2, 0] * x[None, :] + R[2, 1] * y[:, None] + R[2, 2]  # world z of the rays
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (prep.problem.floor_z - float(camera.center[2])) / dz
+    depth = np.where(np.isfinite(t) & (t > 0.0), t, np.inf).astype(np.float32)
+    for caster, corners in zip(prep.static_casters, prep.static_corners, strict=True):
+        window = _render_window(camera, caster, corners, step, shape)
+        if window is not None:
+            view = depth[window[0]]
+            np.minimum(view, window[1], out=view)
+    return depth
+
+
 class _SceneVotes(NamedTuple):
     """Votes of all cameras for all scenes (internal)."""
 
@@ -490,7 +517,7 @@ def _votes(prep: PreparedProblem, cameras: Sequence[Camera]) -> _SceneVotes:
     changed = np.zeros((n_scenes, grid.size), dtype=bool)
     for camera in cameras:
         proj = project_grid(camera, grid, step)
-        B = prep.static.render(camera, step=step)
+        B = _render_reference(prep, camera, step)
         f_ref, _ = free_depth_image(camera, B, B)
         visible = proj.pixel >= 0
         pix = np.where(visible, proj.pixel, 0)
@@ -500,7 +527,7 @@ def _votes(prep: PreparedProblem, cameras: Sequence[Camera]) -> _SceneVotes:
         # Per scene: its window of the image, and free depth and change mask over it.
         per_scene: list[tuple[int, tuple[slice, slice], ArrayF32, ArrayBool]] = []
         for s in range(n_scenes):
-            roi = _render_targets_roi(
+            roi = _render_window(
                 camera, prep.target_casters[s], prep.target_corners[s], step, B.shape
             )
             if roi is None:
