@@ -123,12 +123,12 @@ def test_static_split_clean_frame_reuses_static_region() -> None:
     B = _reference(cam)
     D = np.where(np.isfinite(B) & (B <= cam.far), B, np.inf).astype(np.float32)
     static = CameraStatic(cam, B, 4)
-    free, info = static.free_region(D)
+    free, info = static.free_region(D)  # type: ignore[arg-type]  # float32 frames are accepted
     assert free is static.free_static
     assert info.dirty_blocks == 0
     D2 = D.copy()
     D2[10:14, 20:24] = 1.0  # something appeared
-    fb, dirty, info2 = static.free_blocks(D2)
+    fb, dirty, info2 = static.free_blocks(D2)  # type: ignore[arg-type]
     assert dirty[2:4, 5:6].all() and info2.dirty_blocks == int(dirty.sum()) >= 1
 
 
