@@ -176,7 +176,7 @@ def test_free_region_point_oracle(seed: int, block: int) -> None:
     z = rng.uniform(cam.near, cam.far, size=n)
     pts = cam.unproject(uv, z)
     inside = mesh.contains(pts)
-    assert inside.sum() > 100
+    assert inside.sum() > 20  # the oracle must test something
     # The point's pixel: nearest centre (boundary points may go to either side).
     u_p, _ = cam.project(pts)
     ui = np.clip(np.floor(u_p[:, 0] + 0.5).astype(int), 0, cam.intrinsics.width - 1)
