@@ -248,24 +248,17 @@ class ReconstructionParams:
     Attributes:
         block: Pixels per block side: depth is reduced to blocks by the minimum free depth
             (conservative), which sets the polygon resolution of every camera region.
-        depth_step: Quantisation step of inverse depth ``w = -1/z`` [1/m]; free depth is
-            rounded toward the camera.
         k_of_n: A point is free only if at least this many cameras see it free.
         shadow_memory: Keep the part of M touching the previous region (SPEC section 4).
     """
 
     block: int = 8
-    depth_step: float = 0.004
     k_of_n: int = 1
     shadow_memory: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.block, int) and 1 <= self.block <= 64):
             raise CellError(f"reconstruction.block must be an integer in [1, 64], got {self.block!r}")
-        if not (np.isfinite(self.depth_step) and 0 < self.depth_step <= 0.5):
-            raise CellError(
-                f"reconstruction.depth_step must be in (0, 0.5] 1/m, got {self.depth_step!r}"
-            )
         if not (isinstance(self.k_of_n, int) and self.k_of_n >= 1):
             raise CellError(f"reconstruction.k_of_n must be an integer >= 1, got {self.k_of_n!r}")
 
@@ -292,6 +285,10 @@ class PlausibilityParams:
     """The plausibility rules that turn R2 into R3 (SPEC section 2); each is switchable.
 
     Attributes:
+        floor_shell: Remove the depth-noise sheet above the floor, except under anything
+            crossing ``floor_shell_height`` (see :mod:`polyhull.floor`).
+        keep_at_boundary: Never remove by flying, too_small or too_thin a component that
+            touches a wall or the ceiling of Z (a person outside may reach in).
         flying: Remove components with no support below them (floor or static object).
         too_small: Remove components with volume under ``min_volume``.
         too_thin: Remove components lying inside a shell of ``shell_thickness`` around
@@ -304,9 +301,14 @@ class PlausibilityParams:
         min_volume: Smallest volume [m^3] of a person part that can appear alone.
         shell_thickness: Thickness [m] of the noise shell around known objects.
         human_speed_max: v_max [m/s] of the teleport and entry rules.
+        floor_shell_height: Height [m] of the floor shell; above the noise band, below
+            the thickness of a person lying down.
+        floor_shell_margin: Horizontal reach [m] of feet around the legs' cross-section.
         entry_areas: Declared entry areas.
     """
 
+    floor_shell: bool = True
+    keep_at_boundary: bool = True
     flying: bool = True
     too_small: bool = True
     too_thin: bool = True
@@ -316,10 +318,19 @@ class PlausibilityParams:
     min_volume: float = 0.001
     shell_thickness: float = 0.04
     human_speed_max: float = 2.0
+    floor_shell_height: float = 0.25
+    floor_shell_margin: float = 0.3
     entry_areas: tuple[EntryArea, ...] = ()
 
     def __post_init__(self) -> None:
-        for name in ("support_eps", "min_volume", "shell_thickness", "human_speed_max"):
+        for name in (
+            "support_eps",
+            "min_volume",
+            "shell_thickness",
+            "human_speed_max",
+            "floor_shell_height",
+            "floor_shell_margin",
+        ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):
                 raise CellError(f"plausibility.{name} must be a finite number >= 0, got {value!r}")

@@ -7,7 +7,8 @@ Only this module knows the order of the stages:
 3. fusion: the depth hull ``C = Z \\ F`` (:mod:`polyhull.fusion`), k-of-n optional;
 4. robot occlusion M at q (:mod:`polyhull.occlusion`);
 5. ``R2 = (C \\ M) U (C n M n grow(R_prev)) \\ O \\ robot`` (shadow memory, SPEC section 4);
-6. plausibility: ``R3`` (:mod:`polyhull.plausibility`);
+6. plausibility: ``R3``: the floor-shell rule (:mod:`polyhull.floor`), then the rules over
+   components (:mod:`polyhull.plausibility`);
 7. distance between R3 and the robot (:mod:`polyhull.distance`, python-fcl);
 8. speed (:mod:`polyhull.speed`).
 
@@ -29,10 +30,16 @@ import numpy as np
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel
 from .errors import PolyhullError
+from .floor import floor_shell
 from .frames import DepthFrame
 from .fusion import depth_hull
 from .occlusion import grow_piece, robot_occlusion
-from .plausibility import PlausibilityContext, RemovedComponent, apply_plausibility
+from .plausibility import (
+    PlausibilityContext,
+    RemovedComponent,
+    apply_plausibility,
+    mesh_volume_centroid,
+)
 from .regions import CameraStatic, check_manifold
 from .robot import Robot
 from .speed import decide_speed
@@ -171,8 +178,10 @@ class Monitor:
             self._statics.append(CameraStatic(cam, ref, params.block))
         self._zone = cell.zone.manifold()
         self._free_static = [s.free_static for s in self._statics]
+        # Clipped to Z: M (a subset of it) then stays inside the zone.
         self._free_static_union = check_manifold(
-            m3.Manifold.batch_boolean([f for f in self._free_static if not f.is_empty()], m3.OpType.Add),
+            m3.Manifold.batch_boolean([f for f in self._free_static if not f.is_empty()], m3.OpType.Add)
+            ^ self._zone,
             "static free region",
         )
         self._hull_static = check_manifold(self._zone - self._free_static_union, "static hull")
@@ -184,6 +193,9 @@ class Monitor:
             robot = Robot.from_spec(cell.robot)
         self.robot = robot
         self._padding = cell.robot.padding if cell.robot is not None else 0.0
+        # Pieces grow by at most padding * sqrt(3) (cube corners): that is the margin added
+        # to the protective separation distance.
+        self._margin = self._padding * math.sqrt(3.0)
         if robot is not None:
             moving = _moving_links(robot)
             geometry = robot.link_geometry()
@@ -423,6 +435,7 @@ class Monitor:
             return self._stop_verdict(stamp, q, faults, warnings, timings, t_start, hull=hull)
         T_links: dict[str, ArrayF64] = {}
         robot_body = m3.Manifold()
+        robot_pieces: tuple[m3.Manifold, ...] = ()
         occlusion = m3.Manifold()
         if self.robot is not None:
             T_links = self._timed(timings, "kinematics", lambda: self.robot.link_transforms(qv))  # type: ignore[union-attr]
@@ -435,17 +448,20 @@ class Monitor:
                 timings,
                 "occlusion",
                 lambda: robot_occlusion(
-                    cell.cameras, self._free_static, self._free_static_union, pieces
+                    cell.cameras,
+                    self._free_static,
+                    self._free_static_union,
+                    pieces,
+                    cell.reconstruction.block,
                 ),
             )
-            robot_body = m3.Manifold.batch_boolean(
-                [m3.Manifold.hull_points(p) for p in pieces], m3.OpType.Add
-            )
+            robot_pieces = tuple(m3.Manifold.hull_points(p) for p in pieces)
+            robot_body = m3.Manifold.batch_boolean(list(robot_pieces), m3.OpType.Add)
 
         # 5. R2 with the shadow memory
         def region_r2() -> m3.Manifold:
-            visible = hull - occlusion
-            parts = [visible]
+            # (C \ M) U (C n M n G) == C \ (M \ G): one clean subtraction.
+            hidden = occlusion
             if (
                 cell.reconstruction.shadow_memory
                 and self._prev_region is not None
@@ -455,9 +471,8 @@ class Monitor:
                 dt = max(stamp - self._prev_stamp, 0.0)
                 grown = _grow_near(self._prev_region, occlusion, safety.human_speed * dt + 1e-3)
                 if not grown.is_empty():
-                    parts.append(m3.Manifold.batch_boolean([hull, occlusion, grown], m3.OpType.Intersect))
-            r = m3.Manifold.batch_boolean(parts, m3.OpType.Add) if len(parts) > 1 else visible
-            r = m3.Manifold.batch_boolean([r, self._solids, robot_body], m3.OpType.Subtract)
+                    hidden = occlusion - grown
+            r = m3.Manifold.batch_boolean([hull, hidden, self._solids, robot_body], m3.OpType.Subtract)
             return check_manifold(r, "region R2")
 
         r2 = self._timed(timings, "subtract", region_r2)
@@ -468,11 +483,24 @@ class Monitor:
             zone=cell.zone,
             params=cell.plausibility,
             support=self._support,
-            known_objects=self._obstacle_manifolds + ((robot_body,) if not robot_body.is_empty() else ()),
+            known_objects=self._obstacle_manifolds + robot_pieces,
             previous=self._prev_components,
             dt=dt_prev,
+            occlusion=occlusion if not occlusion.is_empty() else None,
         )
-        result = self._timed(timings, "plausibility", lambda: apply_plausibility(r2, ctx))
+        floor_removed: tuple[RemovedComponent, ...] = ()
+        r2_rules = r2
+        if cell.plausibility.floor_shell:
+            p = cell.plausibility
+            r2_rules, sheet = self._timed(
+                timings,
+                "floor_shell",
+                lambda: floor_shell(r2, hull, cell.zone, p.floor_shell_height, p.floor_shell_margin),
+            )
+            if not sheet.is_empty():
+                volume, centroid = mesh_volume_centroid(sheet)
+                floor_removed = (RemovedComponent("floor_shell", volume, centroid, sheet),)
+        result = self._timed(timings, "plausibility", lambda: apply_plausibility(r2_rules, ctx))
         region = check_manifold(result.region, "region R3")
 
         # 7. distance
@@ -491,7 +519,7 @@ class Monitor:
         # 8. speed
         latency = time.perf_counter() - t_start
         decision = self._timed(
-            timings, "speed", lambda: decide_speed(dist.distance, safety, latency, self._padding)
+            timings, "speed", lambda: decide_speed(dist.distance, safety, latency, self._margin)
         )
         if latency > safety.cycle_deadline:
             warnings.append(f"cycle over its deadline: {latency * 1e3:.1f} ms > {safety.cycle_deadline * 1e3:.0f} ms")
@@ -507,7 +535,7 @@ class Monitor:
             robot_occlusion=occlusion,
             region_r2=r2,
             region=region,
-            removed=result.removed,
+            removed=floor_removed + result.removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,

@@ -139,7 +139,7 @@ def test_paper_cell() -> None:
         assert cam.kind == "depth"
         assert (cam.intrinsics.width, cam.intrinsics.height) == (640, 480)
         assert cam.intrinsics == Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
-        assert (cam.near, cam.far, cam.noise, cam.tolerance_sigmas) == (0.3, 8.0, 0.0015, 3.0)
+        assert (cam.near, cam.far, cam.noise, cam.tolerance_sigmas) == (0.3, 10.0, 0.0015, 3.0)
         # Ceiling corner, looking down at the middle of the cell.
         assert cam.center[2] == pytest.approx(3.3)
         optical_axis = cam.T_world_camera[:3, 2]
@@ -286,7 +286,6 @@ background_mismatch = 0.1
 joint_state_max_age = 0.2
 [reconstruction]
 block = 4
-depth_step = 0.002
 k_of_n = 1
 shadow_memory = false
 [plausibility]
@@ -299,6 +298,10 @@ support_eps = 0.02
 min_volume = 0.002
 shell_thickness = 0.03
 human_speed_max = 2.5
+floor_shell = false
+keep_at_boundary = false
+floor_shell_height = 0.3
+floor_shell_margin = 0.4
 """
     cell = load_cell(write_cell(tmp_path, text))
     for section, params in (
