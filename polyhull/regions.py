@@ -32,9 +32,10 @@ import numpy as np
 
 from .camera import Camera
 from .errors import FrameError, GeometryError
-from .typed import ArrayBool, ArrayF64
+from .typed import ArrayBool, ArrayF32, ArrayF64
 
 __all__ = [
+    "CONSISTENT_BAND",
     "CameraStatic",
     "CameraFrameInfo",
     "free_depth",
@@ -45,6 +46,10 @@ __all__ = [
 ]
 
 
+CONSISTENT_BAND = 1.5
+"""Width of the static consistent band in depth tolerances (1.5 tau = 4.5 sigma at 3 sigma)."""
+
+
 def check_manifold(m: m3.Manifold, what: str) -> m3.Manifold:
     """Return ``m`` if manifold3d reports no error, else raise :class:`GeometryError`."""
     status = m.status()
@@ -53,14 +58,17 @@ def check_manifold(m: m3.Manifold, what: str) -> m3.Manifold:
     return m
 
 
-def _tau_inverse_band(camera: Camera, reference: ArrayF64) -> tuple[ArrayF64, ArrayF64]:
-    """Per-pixel consistent band ``[T, U]`` for reference depth ``B`` (+inf where no hit).
+def _tau_inverse_band(
+    camera: Camera, reference: ArrayF64, width: float = 1.0
+) -> tuple[ArrayF64, ArrayF64]:
+    """Per-pixel band ``[T, U]`` around reference depth ``B`` (+inf where no hit).
 
-    ``T = h^-1(B)`` with ``h(D) = D + tau(D)`` (increasing), so ``D < T`` iff
-    ``D < B - tau(D)``; ``U = min(B + tau(B), far)``.
+    ``T = h^-1(B)`` with ``h(D) = D + width * tau(D)`` (increasing); with ``width = 1``,
+    ``D < T`` iff ``D < B - tau(D)``, the SPEC's "changed" test. ``U = min(B + width *
+    tau(B), far)``.
     """
-    a = camera.tolerance_sigmas * camera.noise  # tau = max(a D^2, tau_min)
-    t_min = camera.tolerance_min
+    a = width * camera.tolerance_sigmas * camera.noise  # width * tau = max(a D^2, .. t_min)
+    t_min = width * camera.tolerance_min
     B = reference
     cand_lin = B - t_min
     with np.errstate(invalid="ignore", over="ignore"):
@@ -69,7 +77,7 @@ def _tau_inverse_band(camera: Camera, reference: ArrayF64) -> tuple[ArrayF64, Ar
         else:
             cand_quad = B
     T = np.minimum(cand_lin, cand_quad)
-    U = np.minimum(B + camera.tau(np.minimum(B, camera.far)), camera.far)
+    U = np.minimum(B + width * camera.tau(np.minimum(B, camera.far)), camera.far)
     U = np.where(np.isinf(B), camera.far, U)
     return T, U
 
@@ -95,7 +103,7 @@ def free_depth(camera: Camera, depth: ArrayF64, reference: ArrayF64) -> ArrayF64
     usable = valid | no_return
     B_eff = np.minimum(B, far)
     if camera.kind == "color":
-        T, _ = _tau_inverse_band(camera, B)
+        T, _ = _tau_inverse_band(camera, B_eff)  # beyond the range, +inf reads unchanged
         changed = D_eff < T
         f = np.where(usable & ~changed, B_eff - camera.tau(B_eff), near)
     else:
@@ -239,17 +247,25 @@ class CameraStatic:
             raise FrameError(
                 f"camera '{cam.name}': reference shape {B.shape} != image shape {cam.shape}"
             )
-        T, U = _tau_inverse_band(cam, B)
+        # The consistent band is an implementation device, wider than the SPEC's "changed"
+        # test so that ordinary noise (out to about 4.5 sigma) keeps a block static: any
+        # depth inside it frees at least f_static, so widening only costs tightness.
+        # A colour camera's depth is binary (changed or not at 1 tau), so its band stays
+        # exactly the SPEC's "unchanged" test.
+        width = 1.0 if cam.kind == "color" else CONSISTENT_BAND
+        T, U = _tau_inverse_band(cam, B, width)
         in_range = np.isfinite(B) & (B <= cam.far)
-        if cam.kind == "color":
-            f_static = B - cam.tau(B)
-        else:
-            # min over D in [T, U] of min(D, B) - tau(D): at D = T or D = U.
-            f_static = np.minimum(T - cam.tau(T), B - cam.tau(U))
-        # Where the background lies beyond the rated range a driver reports 0 (unknown) or
-        # +inf: such a pixel is expected to free nothing, and only an in-range depth there
-        # (something appeared) needs the exact path.
-        f_static = np.where(in_range, np.clip(f_static, cam.near, cam.far), cam.near)
+        with np.errstate(invalid="ignore"):  # inf - inf where nothing is hit; masked below
+            if cam.kind == "color":
+                f_static = B - cam.tau(B)
+            else:
+                # min over D in [T, U] of min(D, B) - tau(D): at D = T or D = U.
+                f_static = np.minimum(T - cam.tau(T), B - cam.tau(U))
+        # Where the background lies beyond the rated range, a REP 117 driver reports +inf
+        # (no return), which frees up to the rated range: that is the static expectation.
+        # Anything else there (0, NaN, a finite depth) takes the exact path.
+        no_return_free = cam.far - float(cam.tau(cam.far))
+        f_static = np.where(in_range, np.clip(f_static, cam.near, cam.far), no_return_free)
         fsb = block_min(f_static, self.block)
         beyond = np.ascontiguousarray(~in_range)
         beyond.setflags(write=False)
@@ -262,7 +278,7 @@ class CameraStatic:
         object.__setattr__(self, "_background", in_range)
         object.__setattr__(self, "free_static", free_region_from_blocks(cam, fsb, self.block))
 
-    def free_blocks(self, depth: ArrayF64) -> tuple[ArrayF64, ArrayBool, CameraFrameInfo]:
+    def free_blocks(self, depth: ArrayF32 | ArrayF64) -> tuple[ArrayF64, ArrayBool, CameraFrameInfo]:
         """Per-block free depth of a measured frame, and which blocks were recomputed.
 
         Args:
@@ -276,14 +292,13 @@ class CameraStatic:
         D = depth
         consistent = (D >= self.lower) & (D <= self.upper)  # NaN compares False
         if self._has_beyond:
-            in_range = (D >= cam.near) & (D <= cam.far)
-            consistent = np.where(self._beyond, ~in_range, consistent)
+            consistent = np.where(self._beyond, np.isposinf(D), consistent)
         H, W = D.shape
         Hb, Wb = self.free_static_blocks.shape
         if Hb * b == H and Wb * b == W:
-            dirty = ~consistent.reshape(Hb, b, Wb, b).all(axis=(1, 3))
+            dirty = np.asarray(~consistent.reshape(Hb, b, Wb, b).all(axis=(1, 3)), dtype=bool)
         else:
-            dirty = block_min(consistent.astype(np.float64), b, 1.0) < 1.0
+            dirty = np.asarray(block_min(consistent.astype(np.float64), b, 1.0) < 1.0, dtype=bool)
         if not dirty.any():
             return self.free_static_blocks, dirty, CameraFrameInfo(0, 0.0, 0.0)
         rows, cols = np.nonzero(dirty)
@@ -305,7 +320,7 @@ class CameraStatic:
         info = CameraFrameInfo(int(rows.size), invalid_share, float(far_side) / bg)
         return fb, dirty, info
 
-    def free_region(self, depth: ArrayF64) -> tuple[m3.Manifold, CameraFrameInfo]:
+    def free_region(self, depth: ArrayF32 | ArrayF64) -> tuple[m3.Manifold, CameraFrameInfo]:
         """F(i) of a measured frame (world frame) and the frame info."""
         fb, dirty, info = self.free_blocks(depth)
         if not dirty.any():
