@@ -5,9 +5,10 @@ object (a person) could be as a watertight mesh, subtracts the robot occlusion a
 solids, measures the distance to the robot and derives a safe robot speed (ISO/TS 15066).
 """
 
+import atexit
+import gc
+
 from .camera import Camera as Camera
-from .cellfile import default_cell_path as default_cell_path
-from .cellfile import load_cell as load_cell
 from .camera import Intrinsics as Intrinsics
 from .cell import Cell as Cell
 from .cell import Obstacle as Obstacle
@@ -16,6 +17,8 @@ from .cell import ReconstructionParams as ReconstructionParams
 from .cell import RobotSpec as RobotSpec
 from .cell import SafetyParams as SafetyParams
 from .cell import Zone as Zone
+from .cellfile import default_cell_path as default_cell_path
+from .cellfile import load_cell as load_cell
 from .errors import CameraError as CameraError
 from .errors import CellError as CellError
 from .errors import FrameError as FrameError
@@ -42,6 +45,10 @@ from .speed import SpeedDecision as SpeedDecision
 from .speed import decide_speed as decide_speed
 
 __version__ = "0.1.0"
+
+# Collect reference cycles holding manifold3d objects before interpreter shutdown; nanobind
+# would otherwise report them as leaks on stderr when the process exits.
+atexit.register(gc.collect)
 
 __all__ = [
     "Camera",

@@ -64,6 +64,7 @@ Conservative approximations (each can only make a rule fire less often):
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import threading
 from collections import OrderedDict
@@ -425,8 +426,16 @@ class _GrownCache:
                 self._items.popitem(last=False)
         return grown
 
+    def clear(self) -> None:
+        """Drop every cached object."""
+        with self._lock:
+            self._items.clear()
+
 
 _GROWN_CACHE = _GrownCache()
+# Free the cached manifolds before interpreter shutdown, not after it (nanobind reports
+# objects still alive at shutdown as leaks on stderr).
+atexit.register(_GROWN_CACHE.clear)
 
 
 def _face_planes(m: m3.Manifold) -> ArrayF64:

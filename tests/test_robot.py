@@ -224,7 +224,7 @@ def test_fk_matches_yourdfpy(q: np.ndarray) -> None:
     frames = _ARM.frame_transforms(q)
     for name in _ARM.frame_names:
         expected = _ARM_YOURDFPY.get_transform(name, _ARM_YOURDFPY.base_link)
-        np.testing.assert_allclose(frames[name], expected, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(frames[name], expected, atol=1e-7, rtol=0)
 
 
 @given(qs=st.lists(arm_q, min_size=1, max_size=5))
@@ -281,7 +281,7 @@ def test_fk_matches_yourdfpy_for_prismatic_continuous_mimic_and_fixed(
     frames = robot.frame_transforms(q)
     for name in robot.frame_names:
         np.testing.assert_allclose(
-            frames[name], reference.get_transform(name, reference.base_link), atol=1e-9, rtol=0
+            frames[name], reference.get_transform(name, reference.base_link), atol=1e-7, rtol=0
         )
 
 

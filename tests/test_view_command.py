@@ -17,10 +17,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import polyhull_viewer
 import pytest
 import umsgpack
 
+import polyhull_viewer
 from polyhull.cellfile import load_cell
 from polyhull.commands import view
 from polyhull.errors import FrameError, MissingExtraError, PolyhullError

@@ -17,19 +17,19 @@ from typing import Any
 
 import manifold3d as m3
 import numpy as np
-import polyhull_viewer as pv
 import pytest
 import trimesh
 import umsgpack
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from polyhull_viewer._demo import rigid_transform
-from polyhull_viewer._geometry import cluster_decimate, manifold_arrays, mesh_object
 
+import polyhull_viewer as pv
 from polyhull.camera import Camera, Intrinsics, look_at_rotation
 from polyhull.cell import Cell, Obstacle, RobotSpec, Zone
 from polyhull.errors import FrameError, PolyhullError
 from polyhull.frames import DepthFrame
+from polyhull_viewer._demo import rigid_transform
+from polyhull_viewer._geometry import cluster_decimate, manifold_arrays, mesh_object
 
 # -- fixtures ---------------------------------------------------------------------------------
 

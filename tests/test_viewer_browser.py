@@ -19,15 +19,15 @@ from pathlib import Path
 
 import manifold3d as m3
 import numpy as np
-import polyhull_viewer as pv
 import pytest
 from PIL import Image
-from polyhull_viewer._scene import view_pose
 
+import polyhull_viewer as pv
 from polyhull.cell import Cell
 from polyhull.cellfile import load_cell
 from polyhull.commands import view
 from polyhull.robot import Robot
+from polyhull_viewer._scene import view_pose
 
 pytestmark = pytest.mark.browser
 

@@ -92,7 +92,8 @@ def _run(args: argparse.Namespace) -> int:
     w = result["workload"]
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution']}, block {w['block_px']} px, {w['cycles']} cycles")  # type: ignore[index]
     print(f"{'stage':<16}{'median [ms]':>12}")
-    for stage, ms in result["stages_ms_median"].items():  # type: ignore[union-attr]
+    stages: dict[str, float] = result["stages_ms_median"]  # type: ignore[assignment]
+    for stage, ms in stages.items():
         print(f"{stage:<16}{ms:12.1f}")
     print(f"{'cycle median':<16}{result['cycle_ms_median']:12.1f}   (target <= 10 ms)")
     print(f"{'cycle p99':<16}{result['cycle_ms_p99']:12.1f}   (target <= 20 ms)")
