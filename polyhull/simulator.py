@@ -61,6 +61,9 @@ class SensorEffects:
         noise: Add Gaussian depth noise with standard deviation ``camera.noise * z**2``
             [m] at z-depth z [m] (``camera.noise`` is the std at 1 m).
         dropout: Share in [0, 1] of pixels set to 0 (unknown) at random.
+        dropout_cluster: Side [px] of the square patches in which pixels drop out. Real
+            depth cameras lose pixels in patches (dark or specular spots, multipath), not
+            as isolated pixels; 1 gives independent pixels (salt and pepper).
         out_of_range: Report depth outside the camera range ``[near, far]`` [m], and no
             return (+inf), as 0 like real drivers; when False they are kept (+inf stays
             +inf, which REP 117 reads as "no return").
@@ -76,6 +79,7 @@ class SensorEffects:
 
     noise: bool = True
     dropout: float = 0.002
+    dropout_cluster: int = 4
     out_of_range: bool = True
     flying_pixels: bool = True
     uint16: bool = False
@@ -85,6 +89,10 @@ class SensorEffects:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.dropout) and 0.0 <= self.dropout <= 1.0):
             raise PolyhullError(f"SensorEffects.dropout must be a share in [0, 1], got {self.dropout!r}")
+        if not (isinstance(self.dropout_cluster, int) and 1 <= self.dropout_cluster <= 64):
+            raise PolyhullError(
+                f"SensorEffects.dropout_cluster must be an integer in [1, 64] px, got {self.dropout_cluster!r}"
+            )
         if not (np.isfinite(self.flying_jump) and self.flying_jump > 0.0):
             raise PolyhullError(
                 f"SensorEffects.flying_jump must be > 0 m, got {self.flying_jump!r}"
@@ -163,7 +171,17 @@ def apply_sensor_effects(
         out[finite] += standard[finite] * np.float32(camera.noise) * out[finite] ** 2
     if effects.dropout > 0.0:
         rng = _stream(int(seed), camera_index, _STREAM_DROPOUT)
-        out[rng.random(out.shape, dtype=np.float32) < effects.dropout] = 0.0
+        k = effects.dropout_cluster
+        if k == 1:
+            out[rng.random(out.shape, dtype=np.float32) < effects.dropout] = 0.0
+        else:
+            # Patch corners with probability share / k^2, each grown to a k x k patch.
+            seeds = rng.random(out.shape, dtype=np.float32) < effects.dropout / (k * k)
+            patch = np.zeros((out.shape[0] + k - 1, out.shape[1] + k - 1), dtype=bool)
+            for dv in range(k):
+                for du in range(k):
+                    patch[dv : dv + out.shape[0], du : du + out.shape[1]] |= seeds
+            out[patch[: out.shape[0], : out.shape[1]]] = 0.0
     if effects.out_of_range:
         with np.errstate(invalid="ignore"):
             bad = ~((out >= camera.near) & (out <= camera.far))

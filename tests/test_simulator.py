@@ -122,9 +122,12 @@ def test_noise_std_grows_with_depth_squared():
 
 def test_noise_and_dropout_switch_independently():
     sim = simulator()
-    base = SensorEffects(noise=False, dropout=0.1, out_of_range=False, flying_pixels=False)
+    base = SensorEffects(noise=False, dropout=0.1, dropout_cluster=1, out_of_range=False, flying_pixels=False)
     dropped = sim.render(seed=5, effects=base)["top"].depth
-    with_noise = sim.render(seed=5, effects=SensorEffects(noise=True, dropout=0.1, out_of_range=False, flying_pixels=False))
+    with_noise = sim.render(
+        seed=5,
+        effects=SensorEffects(noise=True, dropout=0.1, dropout_cluster=1, out_of_range=False, flying_pixels=False),
+    )
     # the same pixels drop out whether or not noise is on
     np.testing.assert_array_equal(dropped == 0, with_noise["top"].depth == 0)
     share = np.mean(dropped == 0)
@@ -133,6 +136,28 @@ def test_noise_and_dropout_switch_independently():
     exact = sim.render(seed=5, effects=SensorEffects.none())["top"].depth
     kept = dropped != 0
     np.testing.assert_array_equal(dropped[kept], exact[kept])
+
+
+def test_dropouts_come_in_patches():
+    sim = simulator()
+    effects = SensorEffects(noise=False, dropout=0.05, dropout_cluster=4, out_of_range=False, flying_pixels=False)
+    dropped = sim.render(seed=2, effects=effects)["top"].depth == 0
+    # Patches overlap a little: the share lies a bit under the nominal one.
+    assert 0.03 < dropped.mean() <= 0.055
+    # Every dropped pixel lies in a fully dropped 4 x 4 patch (no isolated pixels); patches
+    # cut by the image border count as full (outside is padded as dropped).
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    dropped = np.pad(dropped, 3, constant_values=True)
+    full = sliding_window_view(dropped, (4, 4)).all(axis=(2, 3))
+    covered = np.zeros_like(dropped)
+    for dv in range(4):
+        for du in range(4):
+            covered[dv : dv + full.shape[0], du : du + full.shape[1]] |= full
+    isolated = (dropped & ~covered)[3:-3, 3:-3]  # the image itself, not its padding
+    assert not isolated.any()
+    with pytest.raises(PolyhullError, match="dropout_cluster"):
+        SensorEffects(dropout_cluster=0)
 
 
 def test_out_of_range_is_reported_as_zero():

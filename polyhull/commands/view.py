@@ -120,10 +120,20 @@ def _run(args: argparse.Namespace) -> int:
         print(f"polyhull view: wrote {out} (open it in a browser; no server needed)")
         return 0
 
-    with pv.LiveViewer() as live:
-        draw(live.vis)
-        print(f"polyhull view: serving {cell.name!r} at {live.url} (Ctrl-C to stop)", flush=True)
-        _serve(args.serve_seconds)
+    # SIGTERM is handled like Ctrl-C from before the server starts (a signal sent as soon as
+    # the URL is printed must not find the default handler).
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt) if in_main else None
+    try:
+        with pv.LiveViewer() as live:
+            draw(live.vis)
+            print(f"polyhull view: serving {cell.name!r} at {live.url} (Ctrl-C to stop)", flush=True)
+            _serve(args.serve_seconds)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if in_main:
+            signal.signal(signal.SIGTERM, previous)
     print("polyhull view: server stopped", flush=True)
     return 0
 
@@ -135,13 +145,9 @@ def _raise_interrupt(signum: int, frame: Any) -> None:
 def _serve(seconds: float | None) -> None:
     """Sleep until Ctrl-C or SIGTERM (or for ``seconds`` [s]); the caller closes the server.
 
-    SIGTERM is handled like Ctrl-C so that ``kill`` also stops the meshcat server, which
-    runs in its own session and would otherwise outlive this process.
+    The caller handles SIGTERM like Ctrl-C so that ``kill`` also stops the meshcat server,
+    which runs in its own session and would otherwise outlive this process.
     """
-    previous = None
-    in_main = threading.current_thread() is threading.main_thread()
-    if in_main:
-        previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         if seconds is None:
             while True:
@@ -150,9 +156,6 @@ def _serve(seconds: float | None) -> None:
             time.sleep(seconds)
     except KeyboardInterrupt:
         pass
-    finally:
-        if in_main:
-            signal.signal(signal.SIGTERM, previous)
 
 
 def _report(verdict: Any) -> None:
