@@ -25,7 +25,12 @@ __all__ = ["floor_shell"]
 
 
 def floor_shell(
-    region: m3.Manifold, occupied: m3.Manifold, zone: Zone, height: float, margin: float
+    region: m3.Manifold,
+    occupied: m3.Manifold,
+    zone: Zone,
+    height: float,
+    margin: float,
+    not_people: m3.Manifold | None = None,
 ) -> tuple[m3.Manifold, m3.Manifold]:
     """Remove the floor noise sheet from ``region``.
 
@@ -36,6 +41,8 @@ def floor_shell(
         zone: The zone; its min z is the floor.
         height: Height [m] of the shell above the floor (above the noise band).
         margin: Horizontal distance [m] around the slice at ``height`` that is kept below it.
+        not_people: What stands on the floor but is no person (the robot body, solid
+            obstacles): its cross-section does not keep the noise around it.
 
     Returns:
         (kept region, removed part); the removed part is empty when nothing was removed.
@@ -48,6 +55,8 @@ def floor_shell(
         (lo[0] - 1.0, lo[1] - 1.0, floor - 1e-6)
     )
     section = occupied.slice(floor + height)
+    if not_people is not None and not not_people.is_empty():
+        section = section - not_people.slice(floor + height)
     keep_zone = shell
     if not section.is_empty():
         grown = section.offset(margin, m3.JoinType.Round) if margin > 0 else section

@@ -496,7 +496,14 @@ class Monitor:
             r2_rules, sheet = self._timed(
                 timings,
                 "floor_shell",
-                lambda: floor_shell(r2, hull, cell.zone, p.floor_shell_height, p.floor_shell_margin),
+                lambda: floor_shell(
+                    r2,
+                    hull,
+                    cell.zone,
+                    p.floor_shell_height,
+                    p.floor_shell_margin,
+                    m3.Manifold.batch_boolean([robot_body, self._solids], m3.OpType.Add),
+                ),
             )
             if not sheet.is_empty():
                 volume, centroid = mesh_volume_centroid(sheet)
