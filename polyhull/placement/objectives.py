@@ -27,6 +27,7 @@ evaluation in a worker process or on a Dask worker only ships the problem and th
 
 from __future__ import annotations
 
+import atexit
 import hashlib
 import threading
 from collections import OrderedDict
@@ -344,6 +345,9 @@ class PreparedProblem:
 _CACHE: OrderedDict[str, PreparedProblem] = OrderedDict()
 _CACHE_LOCK = threading.Lock()
 _CACHE_SIZE = 4
+# Prepared problems hold the cell's manifolds: free them before interpreter shutdown
+# (nanobind reports manifolds still alive then as leaks).
+atexit.register(_CACHE.clear)
 
 
 def prepare(problem: PlacementProblem) -> PreparedProblem:
