@@ -264,11 +264,12 @@ class CameraStatic:
             else:
                 # min over D in [T, U] of min(D, B) - tau(D): at D = T or D = U.
                 f_static = np.minimum(T - cam.tau(T), B - cam.tau(U))
-        # Where the background lies beyond the rated range, a REP 117 driver reports +inf
-        # (no return), which frees up to the rated range: that is the static expectation.
-        # Anything else there (0, NaN, a finite depth) takes the exact path.
-        no_return_free = cam.far - float(cam.tau(cam.far))
-        f_static = np.where(in_range, np.clip(f_static, cam.near, cam.far), no_return_free)
+        # Where the background lies beyond the rated range, drivers report 0, NaN, +inf (REP
+        # 117 "no return") or a depth beyond the range: any of these is the static
+        # expectation, freeing nothing (the exact path frees up to the range for +inf, so
+        # this is the lower bound). Only an in-range depth there (something appeared) takes
+        # the exact path.
+        f_static = np.where(in_range, np.clip(f_static, cam.near, cam.far), cam.near)
         fsb = block_min(f_static, self.block)
         beyond = np.ascontiguousarray(~in_range)
         beyond.setflags(write=False)
@@ -295,7 +296,8 @@ class CameraStatic:
         D = depth
         consistent = (D >= self.lower) & (D <= self.upper)  # NaN compares False
         if self._has_beyond:
-            consistent = np.where(self._beyond, np.isposinf(D), consistent)
+            in_range = (D >= cam.near) & (D <= cam.far)
+            consistent = np.where(self._beyond, ~in_range, consistent)
         H, W = D.shape
         Hb, Wb = self.free_static_blocks.shape
         if Hb * b == H and Wb * b == W:
