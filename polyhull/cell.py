@@ -250,27 +250,18 @@ class ReconstructionParams:
             (conservative), which sets the polygon resolution of every camera region.
         k_of_n: A point is free only if at least this many cameras see it free.
         shadow_memory: Keep the part of M touching the previous region (SPEC section 4).
-        floor_slab: Height [m] above the floor below which every point is taken as possibly
-            occupied: camera free regions are cut at that plane. The depth-noise band of
-            every camera lies there anyway; cutting it keeps the hull's geometry simple (the
-            cameras' nearly coincident band surfaces and dropout holes vanish from it). It
-            only grows C. 0 disables the cut.
     """
 
     block: int = 8
     k_of_n: int = 1
     shadow_memory: bool = True
-    floor_slab: float = 0.2
 
     def __post_init__(self) -> None:
         if not (isinstance(self.block, int) and 1 <= self.block <= 64):
             raise CellError(f"reconstruction.block must be an integer in [1, 64], got {self.block!r}")
         if not (isinstance(self.k_of_n, int) and self.k_of_n >= 1):
             raise CellError(f"reconstruction.k_of_n must be an integer >= 1, got {self.k_of_n!r}")
-        if not (isinstance(self.floor_slab, int | float) and 0 <= self.floor_slab <= 1.0):
-            raise CellError(
-                f"reconstruction.floor_slab must be in [0, 1] m, got {self.floor_slab!r}"
-            )
+
 
 
 @dataclass(frozen=True)
@@ -408,12 +399,6 @@ class Cell:
         odup = sorted({n for n in onames if onames.count(n) > 1})
         if odup:
             raise CellError(f"obstacle names must be unique, repeated: {odup}")
-        slab, shell = self.reconstruction.floor_slab, self.plausibility.floor_shell_height
-        if self.plausibility.floor_shell and slab > 0 and shell <= slab:
-            raise CellError(
-                f"plausibility.floor_shell_height ({shell} m) must exceed "
-                f"reconstruction.floor_slab ({slab} m): the rule slices above the slab"
-            )
         if self.reconstruction.k_of_n > max(1, len(self.cameras)):
             raise CellError(
                 f"reconstruction.k_of_n = {self.reconstruction.k_of_n} exceeds the number of "

@@ -175,8 +175,7 @@ class Monitor:
             if cam.name not in references:
                 raise PolyhullError(f"no reference depth for camera '{cam.name}'")
             ref = np.asarray(references[cam.name], dtype=np.float64)
-            cut = cell.zone.floor_z + params.floor_slab if params.floor_slab > 0 else None
-            self._statics.append(CameraStatic(cam, ref, params.block, cut))
+            self._statics.append(CameraStatic(cam, ref, params.block))
         self._zone = cell.zone.manifold()
         self._free_static = [s.free_static for s in self._statics]
         # Clipped to Z: M (a subset of it) then stays inside the zone.

@@ -226,15 +226,12 @@ class CameraStatic:
         lower: (H, W) per-pixel consistent band lower bound T [m].
         upper: (H, W) consistent band upper bound U [m].
         free_static_blocks: Per-block free depth [m] valid for any consistent measurement.
-        floor_cut: When given, the height [m] (world z) below which nothing is taken as
-            free: every F(i) is cut at that plane (see ``ReconstructionParams.floor_slab``).
         free_static: F(i) of a fully consistent frame (world frame).
     """
 
     camera: Camera
     reference: ArrayF64
     block: int
-    floor_cut: float | None = None
     lower: ArrayF64 = field(init=False, repr=False)
     upper: ArrayF64 = field(init=False, repr=False)
     free_static_blocks: ArrayF64 = field(init=False, repr=False)
@@ -280,7 +277,7 @@ class CameraStatic:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "_background", in_range)
-        object.__setattr__(self, "free_static", self._cut(free_region_from_blocks(cam, fsb, self.block)))
+        object.__setattr__(self, "free_static", free_region_from_blocks(cam, fsb, self.block))
 
     def free_blocks(self, depth: ArrayF32 | ArrayF64) -> tuple[ArrayF64, ArrayBool, CameraFrameInfo]:
         """Per-block free depth of a measured frame, and which blocks were recomputed.
@@ -330,13 +327,4 @@ class CameraStatic:
         fb, dirty, info = self.free_blocks(depth)
         if not dirty.any():
             return self.free_static, info
-        return self._cut(free_region_from_blocks(self.camera, fb, self.block)), info
-
-    def _cut(self, free: m3.Manifold) -> m3.Manifold:
-        """``free`` above the floor cut (only shrinks the free region)."""
-        if self.floor_cut is None or free.is_empty():
-            return free
-        return check_manifold(
-            free.trim_by_plane((0.0, 0.0, 1.0), self.floor_cut),
-            f"camera '{self.camera.name}' free region above the floor slab",
-        )
+        return free_region_from_blocks(self.camera, fb, self.block), info

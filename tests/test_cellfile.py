@@ -288,7 +288,6 @@ joint_state_max_age = 0.2
 block = 4
 k_of_n = 1
 shadow_memory = false
-floor_slab = 0.1
 [plausibility]
 flying = false
 too_small = false
