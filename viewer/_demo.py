@@ -21,7 +21,6 @@ from typing import Any
 
 import manifold3d as m3
 import meshcat.animation as ma
-import meshcat.geometry as mg
 import numpy as np
 import trimesh
 
@@ -29,15 +28,13 @@ from polyhull.cell import Cell
 from polyhull.errors import PolyhullError
 from polyhull.typed import ArrayF32, ArrayF64
 
-from ._colors import STYLE, Style, speed_color_hex
+from ._colors import STYLE, Style
 from ._geometry import (
     ArrayU32,
-    TextLabel,
     cluster_decimate,
     manifold_arrays,
     mesh_object,
     safe_name,
-    segments_object,
     trimesh_arrays,
 )
 from ._html import StaticVisualizer, write_html
@@ -46,8 +43,8 @@ from ._scene import (
     RobotLike,
     VerdictLike,
     _resolve_robot,
-    _translation,
     draw_cell,
+    draw_distance,
     set_view,
 )
 
@@ -261,18 +258,7 @@ class DemoRecorder:
                     mesh_object(v, f, style.region, style.region_opacity)
                 )
                 paths.append(f"anim/region/{k}")
-        p = cycle.closest_points
-        if p is not None and np.isfinite(cycle.min_distance) and np.all(np.isfinite(p)):
-            node = root[f"anim/distance/{k}"]
-            color = speed_color_hex(cycle.speed_scale)
-            node["segment"].set_object(segments_object(p, color))
-            for name, point in (("region_point", p[0]), ("robot_point", p[1])):
-                node[name].set_object(mg.Sphere(0.04), mg.MeshLambertMaterial(color=color))
-                node[name].set_transform(_translation(point))
-            link = f" to {cycle.closest_link}" if cycle.closest_link else ""
-            text = f"{cycle.min_distance:.2f} m{link}, speed {100.0 * cycle.speed_scale:.0f} %"
-            node["label"].set_object(TextLabel(text, height=2.0))
-            node["label"].set_transform(_translation(p.mean(axis=0) + np.array([0.0, 0.0, 0.15])))
+        if draw_distance(root[f"anim/distance/{k}"], cycle):  # a cycle reads like a verdict
             paths.append(f"anim/distance/{k}")
         return paths
 

@@ -84,6 +84,22 @@ class RemovedLike(Protocol):
     def mesh(self) -> m3.Manifold: ...
 
 
+class DistanceLike(Protocol):
+    """The distance fields of a verdict (also of a recorded demo cycle)."""
+
+    @property
+    def min_distance(self) -> float: ...
+
+    @property
+    def closest_points(self) -> Any: ...
+
+    @property
+    def closest_link(self) -> str | None: ...
+
+    @property
+    def speed_scale(self) -> float: ...
+
+
 class VerdictLike(Protocol):
     """The fields of :class:`polyhull.monitor.Verdict` the viewer draws."""
 
@@ -347,7 +363,7 @@ def draw_verdict(
     draw_distance(vis[prefix]["distance"], verdict)
 
 
-def draw_distance(vis: VisualizerLike, verdict: VerdictLike) -> bool:
+def draw_distance(vis: VisualizerLike, verdict: DistanceLike) -> bool:
     """Draw the closest-distance segment of ``verdict`` at ``vis``, or delete it.
 
     Returns:
