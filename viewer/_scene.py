@@ -100,7 +100,7 @@ class DistanceLike(Protocol):
     def speed_scale(self) -> float: ...
 
 
-class VerdictLike(Protocol):
+class VerdictLike(DistanceLike, Protocol):
     """The fields of :class:`polyhull.monitor.Verdict` the viewer draws."""
 
     @property
@@ -114,18 +114,6 @@ class VerdictLike(Protocol):
 
     @property
     def removed(self) -> Sequence[RemovedLike]: ...
-
-    @property
-    def min_distance(self) -> float: ...
-
-    @property
-    def closest_points(self) -> Any: ...
-
-    @property
-    def closest_link(self) -> str | None: ...
-
-    @property
-    def speed_scale(self) -> float: ...
 
     @property
     def q(self) -> Any: ...
