@@ -426,13 +426,19 @@ def _rotation_of_quaternion(value: object, entry: str, src: _Source) -> ArrayF64
         raise src.fail(entry, f"{exc}, got {_show(value)}") from None
 
 
-def _camera(table: Mapping[str, Any], entry: str, src: _Source) -> Camera:
-    _check_keys(table, CAMERA_KEYS, entry, src)
+def _entry_name(table: Mapping[str, Any], entry: str, src: _Source, what: str) -> str:
+    """The required, non-empty ``name`` of an entry (``what``: "a camera", "an obstacle")."""
     if "name" not in table:
-        raise src.fail(f"{entry}.name", "missing key: expected a camera name (a string)")
+        raise src.fail(f"{entry}.name", f"missing key: expected {what} name (a string)")
     name = table["name"]
     if not isinstance(name, str) or not name.strip():
         raise src.expected(f"{entry}.name", "a non-empty string", name)
+    return name
+
+
+def _camera(table: Mapping[str, Any], entry: str, src: _Source) -> Camera:
+    _check_keys(table, CAMERA_KEYS, entry, src)
+    name = _entry_name(table, entry, src, "a camera")
     kind = table.get("type", "depth")
     if kind not in ("depth", "color") or isinstance(kind, bool):
         raise src.expected(f"{entry}.type", "'depth' or 'color'", kind)
@@ -528,11 +534,7 @@ def _load_mesh(path: Path, value: object, entry: str, src: _Source) -> trimesh.T
 
 def _obstacle(table: Mapping[str, Any], entry: str, src: _Source) -> Obstacle:
     _check_keys(table, OBSTACLE_KEYS, entry, src)
-    if "name" not in table:
-        raise src.fail(f"{entry}.name", "missing key: expected an obstacle name (a string)")
-    name = table["name"]
-    if not isinstance(name, str) or not name.strip():
-        raise src.expected(f"{entry}.name", "a non-empty string", name)
+    name = _entry_name(table, entry, src, "an obstacle")
     solid = table.get("solid", True)
     if not isinstance(solid, bool):
         raise src.expected(f"{entry}.solid", "true or false", solid)
