@@ -225,6 +225,7 @@ class CameraStatic:
         block: Block side [px].
         lower: (H, W) per-pixel consistent band lower bound T [m].
         upper: (H, W) consistent band upper bound U [m].
+        free_static_pixels: (H, W) free depth [m] valid for any consistent measurement.
         free_static_blocks: Per-block free depth [m] valid for any consistent measurement.
         free_static: F(i) of a fully consistent frame (world frame).
     """
@@ -234,6 +235,7 @@ class CameraStatic:
     block: int
     lower: ArrayF64 = field(init=False, repr=False)
     upper: ArrayF64 = field(init=False, repr=False)
+    free_static_pixels: ArrayF64 = field(init=False, repr=False)
     free_static_blocks: ArrayF64 = field(init=False, repr=False)
     free_static: m3.Manifold = field(init=False, repr=False)
     _background: ArrayBool = field(init=False, repr=False)
@@ -272,12 +274,29 @@ class CameraStatic:
         beyond.setflags(write=False)
         object.__setattr__(self, "_beyond", beyond)
         object.__setattr__(self, "_has_beyond", bool(beyond.any()))
-        for name, value in (("reference", B), ("lower", T), ("upper", U), ("free_static_blocks", fsb)):
+        for name, value in (
+            ("reference", B),
+            ("lower", T),
+            ("upper", U),
+            ("free_static_pixels", f_static),
+            ("free_static_blocks", fsb),
+        ):
             value = np.ascontiguousarray(value)
             value.setflags(write=False)
             object.__setattr__(self, name, value)
         object.__setattr__(self, "_background", in_range)
         object.__setattr__(self, "free_static", free_region_from_blocks(cam, fsb, self.block))
+
+    def consistent_pixels(self, depth: ArrayF32 | ArrayF64) -> ArrayBool:
+        """(H, W) pixels whose measurement is consistent with the static background: their
+        free depth is at least ``free_static_pixels``."""
+        D = depth
+        consistent = (D >= self.lower) & (D <= self.upper)  # NaN compares False
+        if self._has_beyond:
+            cam = self.camera
+            in_range = (D >= cam.near) & (D <= cam.far)
+            consistent = np.where(self._beyond, ~in_range, consistent)
+        return np.asarray(consistent, dtype=bool)
 
     def free_blocks(self, depth: ArrayF32 | ArrayF64) -> tuple[ArrayF64, ArrayBool, CameraFrameInfo]:
         """Per-block free depth of a measured frame, and which blocks were recomputed.
@@ -291,10 +310,7 @@ class CameraStatic:
         """
         cam, b = self.camera, self.block
         D = depth
-        consistent = (D >= self.lower) & (D <= self.upper)  # NaN compares False
-        if self._has_beyond:
-            in_range = (D >= cam.near) & (D <= cam.far)
-            consistent = np.where(self._beyond, ~in_range, consistent)
+        consistent = self.consistent_pixels(D)
         H, W = D.shape
         Hb, Wb = self.free_static_blocks.shape
         if Hb * b == H and Wb * b == W:
