@@ -811,18 +811,20 @@ def _point_triangle_distances(p: ArrayF64, a: ArrayF64, b: ArrayF64, c: ArrayF64
         t_ab = d1 / (d1 - d3)
         t_ac = d2 / (d2 - d6)
         t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    closest = a + v_face[:, None] * ab + w_face[:, None] * ac  # interior of the face
-    regions = [
-        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + t_bc[:, None] * (c - b)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac),
-        ((d6 >= 0) & (d5 <= d6), c),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab),
-        ((d3 >= 0) & (d4 <= d3), b),
-        ((d1 <= 0) & (d2 <= 0), a),
-    ]
+        # Degenerate triangles give inf or NaN here; they are caught below.
+        closest = a + v_face[:, None] * ab + w_face[:, None] * ac  # interior of the face
+        regions = [
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), b + t_bc[:, None] * (c - b)),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), a + t_ac[:, None] * ac),
+            ((d6 >= 0) & (d5 <= d6), c),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), a + t_ab[:, None] * ab),
+            ((d3 >= 0) & (d4 <= d3), b),
+            ((d1 <= 0) & (d2 <= 0), a),
+        ]
     for mask, point in regions:  # the first matching region wins: apply in reverse
         closest = np.where(mask[:, None], point, closest)
-    dist = np.linalg.norm(p - closest, axis=1)
+    with np.errstate(invalid="ignore"):
+        dist = np.linalg.norm(p - closest, axis=1)
     # A degenerate triangle can leave NaN: fall back to the distance to its corners.
     corners = np.minimum.reduce([np.linalg.norm(p - q, axis=1) for q in (a, b, c)])
     return np.where(np.isfinite(dist), np.minimum(dist, corners), corners)
