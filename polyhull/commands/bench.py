@@ -38,12 +38,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.set_defaults(func=_run)
 
 
-def exact_hull_share(monitor: object, frames: dict, points: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
-    """Which points (N, 3) lie in the exact depth hull of ``frames``: at full resolution,
-    no camera sees them in front of the free depth of the pixel they project to."""
-    return hull_share(monitor, free_depth_variants(monitor, frames)["exact"], points)
-
-
 def free_depth_variants(monitor: object, frames: dict) -> dict[str, dict[str, np.ndarray]]:  # type: ignore[type-arg]
     """Per-pixel free depth images of ``frames`` [m], camera name -> (H, W), for the exact
     depth hull and for the engine's two per-pixel approximations, to split the tightness:
