@@ -32,7 +32,7 @@ from .distance import DistanceResult, RobotDistanceModel
 from .errors import PolyhullError
 from .floor import floor_shell
 from .frames import DepthFrame
-from .fusion import depth_hull
+from .fusion import clip_to_box, depth_hull
 from .occlusion import grow_piece, robot_occlusion
 from .plausibility import (
     PlausibilityContext,
@@ -177,7 +177,9 @@ class Monitor:
             ref = np.asarray(references[cam.name], dtype=np.float64)
             self._statics.append(CameraStatic(cam, ref, params.block))
         self._zone = cell.zone.manifold()
-        self._free_static = [s.free_static for s in self._statics]
+        # Clipped to the zone's box once: M is a subset of Z, where the clip changes nothing,
+        # and the occlusion booleans skip the frustum parts beyond the walls.
+        self._free_static = clip_to_box([s.free_static for s in self._statics], self._zone)
         # Clipped to Z: M (a subset of it) then stays inside the zone.
         self._free_static_union = check_manifold(
             m3.Manifold.batch_boolean([f for f in self._free_static if not f.is_empty()], m3.OpType.Add)

@@ -9,7 +9,7 @@ from conftest import manifold_contains
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
-from polyhull.fusion import depth_hull, free_union
+from polyhull.fusion import clip_to_box, depth_hull, free_union
 from polyhull.person import make_person, sample_points_inside
 from polyhull.regions import free_depth
 from polyhull.simulator import SensorEffects
@@ -80,6 +80,29 @@ def test_k2_hull_contains_k1_hull_and_lies_in_zone(
     for c in (c1, c2):
         assert (c - ZONE).volume() <= 1e-9
         assert c.status() == m3.Error.NoError
+
+
+@settings(max_examples=25, deadline=None, phases=[Phase.generate])
+@given(
+    centre=st.tuples(*(st.floats(-1.0, 4.0) for _ in range(3))),
+    size=st.tuples(*(st.floats(0.2, 4.0) for _ in range(3))),
+)
+def test_clip_to_box_is_exact_inside_the_zone(
+    centre: tuple[float, float, float], size: tuple[float, float, float]
+) -> None:
+    """Clipping a region to the zone's box changes nothing inside Z and nothing beyond the
+    box survives (a region reaching past the walls, as a frustum does)."""
+    zone = _box(*_ZONE)
+    lo = tuple(c - s / 2 for c, s in zip(centre, size, strict=True))
+    hi = tuple(c + s / 2 for c, s in zip(centre, size, strict=True))
+    region = _box(lo, hi).rotate((10.0, 20.0, 30.0))
+    (clipped,) = clip_to_box([region], zone, margin=0.01)
+    assert (clipped ^ zone).volume() == pytest.approx((region ^ zone).volume(), abs=1e-9)
+    if not clipped.is_empty():
+        bb = np.asarray(clipped.bounding_box())
+        assert np.all(bb[:3] >= np.asarray(_ZONE[0]) - 0.01 - 1e-9)
+        assert np.all(bb[3:] <= np.asarray(_ZONE[1]) + 0.01 + 1e-9)
+    assert clip_to_box([m3.Manifold()], zone)[0].is_empty()
 
 
 def test_real_camera_regions_fusion(small_monitor, small_sim) -> None:  # noqa: ANN001
