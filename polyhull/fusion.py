@@ -57,7 +57,7 @@ def depth_hull(zone: m3.Manifold, free_regions: Sequence[m3.Manifold], k: int = 
     """The depth hull ``C = Z \\ F`` (k-of-n rule for F), a checked manifold.
 
     The regions are first clipped to the zone's bounding box (:func:`clip_to_box`), which
-    leaves C unchanged and saves about a quarter of the fusion time on the paper cell.
+    leaves C unchanged and saves about a fifth of the fusion time on the paper cell.
     """
     regions = [f for f in clip_to_box(free_regions, zone) if not f.is_empty()]
     if k == 1:
