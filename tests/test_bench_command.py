@@ -43,8 +43,19 @@ def test_bench_json_has_the_figures(capsys: pytest.CaptureFixture[str]) -> None:
     assert out["workload"]["cameras"] == 2
 
 
+def test_bench_block_overrides_the_cell(capsys: pytest.CaptureFixture[str]) -> None:
+    """--block replaces the cell's reconstruction.block, and the workload says so."""
+    code = _run("--cell", str(SMALL_CELL), "--cycles", "1", "--warmup", "0", "--tightness-samples", "0", "--block", "4", "--json")
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["workload"]["block_px"] == 4
+    assert out["tightness"] is None
+
+
 def test_bench_rejects_bad_counts() -> None:
     with pytest.raises(PolyhullError, match="--cycles"):
         _run("--cell", str(SMALL_CELL), "--cycles", "0")
     with pytest.raises(PolyhullError, match="--tightness-samples"):
         _run("--cell", str(SMALL_CELL), "--tightness-samples", "-1")
+    with pytest.raises(PolyhullError, match="--block"):
+        _run("--cell", str(SMALL_CELL), "--block", "0")
