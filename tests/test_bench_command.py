@@ -40,6 +40,9 @@ def test_bench_json_has_the_figures(capsys: pytest.CaptureFixture[str]) -> None:
     # Each per-pixel approximation step only lowers free depth, so on the same samples the
     # hull only grows: the breakdown is ordered exactly.
     assert 0.0 <= tight["excess_static_band"] <= tight["excess_static_band_and_blocks"]
+    # The per-frame block minima nest (2 px blocks lie in 4 px blocks lie in 8 px blocks).
+    bounds = [tight[f"excess_frame_blocks_{b}"] for b in (2, 4, 8)]
+    assert 0.0 <= bounds[0] <= bounds[1] <= bounds[2]
     assert out["workload"]["cameras"] == 2
 
 
