@@ -243,25 +243,31 @@ class SafetyParams:
 
 @dataclass(frozen=True)
 class ReconstructionParams:
-    """How camera regions are built and fused.
+    """How the static model and the per-cycle pieces are built.
 
     Attributes:
-        block: Pixels per block side: depth is reduced to blocks by the minimum free depth
-            (conservative), which sets the polygon resolution of every camera region.
+        block: Pixels per block side of the static free surfaces (precomputed once): a
+            piecewise-linear surface over b x b pixel blocks that never passes behind a
+            pixel's static free depth. Smaller is tighter along depth edges and slower to
+            precompute (2: ~15 s for the paper cell, cached on disk).
+        tile: Pixels per tile side of the per-cycle pieces: the unexplained pixels of a
+            tile start as one frustum piece, which the carving then splits.
         k_of_n: A point is free only if at least this many cameras see it free.
         shadow_memory: Keep the part of M touching the previous region (SPEC section 4).
     """
 
-    block: int = 8
+    block: int = 2
+    tile: int = 8
     k_of_n: int = 1
     shadow_memory: bool = True
 
     def __post_init__(self) -> None:
         if not (isinstance(self.block, int) and 1 <= self.block <= 64):
             raise CellError(f"reconstruction.block must be an integer in [1, 64], got {self.block!r}")
+        if not (isinstance(self.tile, int) and 1 <= self.tile <= 64):
+            raise CellError(f"reconstruction.tile must be an integer in [1, 64], got {self.tile!r}")
         if not (isinstance(self.k_of_n, int) and self.k_of_n >= 1):
             raise CellError(f"reconstruction.k_of_n must be an integer >= 1, got {self.k_of_n!r}")
-
 
 
 @dataclass(frozen=True)
@@ -287,7 +293,7 @@ class PlausibilityParams:
 
     Attributes:
         floor_shell: Remove the depth-noise sheet above the floor, except under anything
-            crossing ``floor_shell_height`` (see :mod:`polyhull.floor`).
+            crossing ``floor_shell_height`` (see :mod:`polyhull.engine.static_model`).
         keep_at_boundary: Never remove by flying, too_small or too_thin a component that
             touches a wall or the ceiling of Z (a person outside may reach in).
         flying: Remove components with no support below them (floor or static object).

@@ -1,15 +1,26 @@
 """Minimum distance between the region R and the robot with python-fcl.
 
 Robot links are FCL BVH models built once in their link frames; each cycle only their
-transforms change. The region is a fresh BVH each cycle. FCL returns -1 or 0 for objects in
-collision and its witness points are unreliable there, so a distance <= 0 is contact, and a
-fresh ``DistanceResult`` is built for every query.
+transforms change. The region has two parts:
+
+- the static region R3_static: one BVH built when the monitor is built, reused every cycle
+  (its transform is the identity);
+- the dynamic part: convex hexahedra (N, 8, 3). Only the pieces whose bounding sphere can
+  come nearer to a link than the best distance found so far go into a small BVH built for
+  the cycle.
+
+FCL returns -1 or 0 for objects in collision and its witness points are unreliable there,
+so a distance <= 0 is contact, and a fresh ``DistanceResult`` is built for every query.
+FCL measures between surfaces: a link entirely inside the region would report a positive
+distance, so a point inside every moving link is tested for containment (inside a
+hexahedron by its face planes; inside the static region by its winding number) and counts
+as contact.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import fcl
@@ -20,7 +31,18 @@ import trimesh
 from .errors import GeometryError
 from .typed import ArrayF64
 
-__all__ = ["DistanceResult", "RobotDistanceModel", "manifold_to_fcl"]
+__all__ = [
+    "DistanceResult",
+    "RobotDistanceModel",
+    "manifold_to_fcl",
+    "hexahedra_triangles",
+    "points_in_hexahedra",
+    "winding_numbers",
+]
+
+_HEX_FACES = np.array(
+    [[0, 1, 2, 3], [4, 7, 6, 5], [0, 4, 5, 1], [1, 5, 6, 2], [2, 6, 7, 3], [3, 7, 4, 0]], dtype=np.int64
+)
 
 
 class DistanceResult(NamedTuple):
@@ -55,6 +77,46 @@ def manifold_to_fcl(region: m3.Manifold) -> fcl.CollisionObject | None:
     return fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
 
 
+def hexahedra_triangles(vertices: ArrayF64) -> tuple[ArrayF64, np.ndarray]:
+    """Vertices (8N, 3) and triangles (12N, 3) of hexahedra (N, 8, 3)."""
+    n = vertices.shape[0]
+    quads = _HEX_FACES[None, :, :] + 8 * np.arange(n)[:, None, None]  # (N, 6, 4)
+    tris = np.concatenate([quads[:, :, [0, 1, 2]], quads[:, :, [0, 2, 3]]], axis=1).reshape(-1, 3)
+    return vertices.reshape(-1, 3), tris
+
+
+def points_in_hexahedra(points: ArrayF64, vertices: ArrayF64) -> np.ndarray:
+    """(P,) whether each point lies inside (or on) some convex hexahedron (N, 8, 3)."""
+    if len(points) == 0 or vertices.shape[0] == 0:
+        return np.zeros(len(points), dtype=bool)
+    f = vertices[:, _HEX_FACES]  # (N, 6, 4, 3)
+    n = np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
+    n2 = np.cross(f[:, :, 2] - f[:, :, 0], f[:, :, 3] - f[:, :, 0])
+    n = n + n2  # robust when a quad has a degenerate corner
+    c = vertices.mean(axis=1)  # (N, 3)
+    d = np.einsum("nfk,nfk->nf", n, f[:, :, 0])
+    outward = np.einsum("nfk,nk->nf", n, c) < d
+    n = np.where(outward[:, :, None], n, -n)
+    d = np.where(outward, d, -d)
+    tol = 1e-9 * (1.0 + np.abs(d))
+    inside = np.einsum("nfk,pk->pnf", n, points) <= (d + tol)[None]
+    return inside.all(axis=2).any(axis=1)
+
+
+def winding_numbers(points: ArrayF64, vertices: ArrayF64, triangles: np.ndarray) -> ArrayF64:
+    """Generalised winding numbers (P,) of points w.r.t. a closed mesh (~1 inside, ~0 outside)."""
+    out = np.zeros(len(points))
+    a0, b0, c0 = (vertices[triangles[:, k]] for k in range(3))
+    for i, p in enumerate(points):
+        a, b, c = a0 - p, b0 - p, c0 - p
+        la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+        num = np.einsum("ij,ij->i", a, np.cross(b, c))
+        den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la
+        den += np.einsum("ij,ij->i", c, a) * lb
+        out[i] = np.arctan2(num, den).sum() / (2.0 * np.pi)
+    return out
+
+
 class RobotDistanceModel:
     """FCL models of the robot links, for distance queries at changing joint positions."""
 
@@ -65,40 +127,111 @@ class RobotDistanceModel:
             link_geometry: Collision mesh per link in the link frame.
         """
         self._objects: dict[str, fcl.CollisionObject] = {}
+        self._spheres: dict[str, tuple[ArrayF64, float]] = {}
+        self._inner: dict[str, ArrayF64] = {}
         for name, mesh in link_geometry.items():
             if len(mesh.faces) == 0:
                 continue
             self._objects[name] = fcl.CollisionObject(_bvh(mesh.vertices, mesh.faces), fcl.Transform())
+            v = np.asarray(mesh.vertices, dtype=np.float64)
+            center = 0.5 * (v.min(axis=0) + v.max(axis=0))
+            self._spheres[name] = (center, float(np.linalg.norm(v - center, axis=1).max()))
+            # A point inside the link: the centroid of its volume (inside for convex parts,
+            # else the vertex nearest to it, which is on the link).
+            inner = np.asarray(mesh.centroid, dtype=np.float64)
+            self._inner[name] = inner
 
     @property
     def link_names(self) -> tuple[str, ...]:
         """Links with geometry."""
         return tuple(self._objects)
 
-    def distance(self, region: m3.Manifold, T_world_links: Mapping[str, ArrayF64]) -> DistanceResult:
-        """Minimum distance between ``region`` and the robot at the given link poses.
+    def _query(self, region_obj: fcl.CollisionObject, name: str, T: ArrayF64) -> tuple[float, ArrayF64 | None]:
+        obj = self._objects[name]
+        obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+        request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=False)
+        result = fcl.DistanceResult()
+        try:
+            d = float(fcl.distance(region_obj, obj, request, result))
+        except Exception as exc:  # FCL raises plain RuntimeErrors
+            raise GeometryError(f"FCL distance to link '{name}' failed: {exc}") from exc
+        if not math.isfinite(d):
+            raise GeometryError(f"FCL distance to link '{name}' is not finite: {d}")
+        if d <= 0.0:
+            return 0.0, None
+        return d, np.array([result.nearest_points[0], result.nearest_points[1]], dtype=np.float64)
+
+    def inner_points(self, T_world_links: Mapping[str, ArrayF64]) -> dict[str, ArrayF64]:
+        """A point inside (or on) every link, world frame."""
+        return {n: T_world_links[n][:3, :3] @ p + T_world_links[n][:3, 3] for n, p in self._inner.items()}
+
+    def distance(
+        self,
+        T_world_links: Mapping[str, ArrayF64],
+        *,
+        static: fcl.CollisionObject | None = None,
+        static_contains: Callable[[ArrayF64], np.ndarray] | None = None,
+        pieces: ArrayF64 | None = None,
+        region: m3.Manifold | None = None,
+    ) -> DistanceResult:
+        """Minimum distance between the region and the robot at the given link poses.
+
+        Args:
+            T_world_links: (4, 4) pose of every link.
+            static: The static region's FCL object (world frame), or None.
+            static_contains: Which points (P, 3) are inside the static region.
+            pieces: (N, 8, 3) convex hexahedra of the dynamic region [m], or None.
+            region: A region given as one manifold instead (tests, inspection).
 
         Raises:
             GeometryError: FCL failed.
         """
-        region_obj = manifold_to_fcl(region)
-        if region_obj is None:
-            return DistanceResult(math.inf, None, None)
         best = DistanceResult(math.inf, None, None)
-        request = fcl.DistanceRequest(enable_nearest_points=True, enable_signed_distance=False)
-        for name, obj in self._objects.items():
-            T = T_world_links[name]
-            obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
-            result = fcl.DistanceResult()
-            try:
-                d = float(fcl.distance(region_obj, obj, request, result))
-            except Exception as exc:  # FCL raises plain RuntimeErrors
-                raise GeometryError(f"FCL distance to link '{name}' failed: {exc}") from exc
-            if not math.isfinite(d):
-                raise GeometryError(f"FCL distance to link '{name}' is not finite: {d}")
-            if d <= 0.0:
-                return DistanceResult(0.0, None, name)
-            if d < best.distance:
-                pts = np.array([result.nearest_points[0], result.nearest_points[1]], dtype=np.float64)
-                best = DistanceResult(d, pts, name)
+        names = list(self._objects)
+        inner = self.inner_points(T_world_links)
+        inner_pts = np.array([inner[n] for n in names]).reshape(-1, 3)
+        if region is not None:
+            static = manifold_to_fcl(region)
+        if static is not None:
+            if static_contains is not None and len(inner_pts):
+                hit = static_contains(inner_pts)
+                if hit.any():
+                    return DistanceResult(0.0, None, names[int(np.argmax(hit))])
+            for name in names:
+                d, pts = self._query(static, name, T_world_links[name])
+                if d <= 0.0:
+                    return DistanceResult(0.0, None, name)
+                if d < best.distance:
+                    best = DistanceResult(d, pts, name)
+        if pieces is not None and pieces.shape[0]:
+            inside = points_in_hexahedra(inner_pts, pieces)
+            if inside.any():
+                return DistanceResult(0.0, None, names[int(np.argmax(inside))])
+            centers = 0.5 * (pieces.min(axis=1) + pieces.max(axis=1))
+            radii = np.linalg.norm(pieces - centers[:, None, :], axis=2).max(axis=1)
+            spheres = {}
+            for name in names:
+                c, r = self._spheres[name]
+                T = T_world_links[name]
+                spheres[name] = (T[:3, :3] @ c + T[:3, 3], r)
+            lower = np.full(len(centers), np.inf)
+            upper = best.distance
+            mids = pieces.mean(axis=1)  # inside each convex piece
+            for name, (c, r) in spheres.items():
+                lower = np.minimum(lower, np.linalg.norm(centers - c, axis=1) - radii - r)
+                upper = min(upper, float(np.linalg.norm(mids - inner[name], axis=1).min()))
+            cand = lower < upper
+            if cand.any():
+                verts, tris = hexahedra_triangles(pieces[cand])
+                obj = fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
+                cc, cr = centers[cand], radii[cand]
+                for name in names:
+                    c, r = spheres[name]
+                    if float((np.linalg.norm(cc - c, axis=1) - cr - r).min()) >= best.distance:
+                        continue
+                    d, pts = self._query(obj, name, T_world_links[name])
+                    if d <= 0.0:
+                        return DistanceResult(0.0, None, name)
+                    if d < best.distance:
+                        best = DistanceResult(d, pts, name)
         return best

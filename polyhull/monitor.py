@@ -1,16 +1,22 @@
 """The monitor: one surveillance cycle from frames to a verdict (the pipeline).
 
-Only this module knows the order of the stages:
+Only this module knows the order of the stages (:mod:`polyhull.engine`):
 
-1. frames: validation and per-camera free depth (:mod:`polyhull.regions`);
-2. camera regions F(i);
-3. fusion: the depth hull ``C = Z \\ F`` (:mod:`polyhull.fusion`), k-of-n optional;
-4. robot occlusion M at q (:mod:`polyhull.occlusion`);
-5. ``R2 = (C \\ M) U (C n M n grow(R_prev)) \\ O \\ robot`` (shadow memory, SPEC section 4);
-6. plausibility: ``R3``: the floor-shell rule (:mod:`polyhull.floor`), then the rules over
-   components (:mod:`polyhull.plausibility`);
-7. distance between R3 and the robot (:mod:`polyhull.distance`, python-fcl);
-8. speed (:mod:`polyhull.speed`).
+0. once, at construction: the static model (:mod:`polyhull.engine.static_model`), the
+   padded robot pieces, the distance model;
+1. ``frames``: validation (missing, stale, duplicated, out-of-order frames);
+2. ``kinematics``: link poses at q;
+3. ``robot_raster``: the padded robot in every camera's image;
+4. ``pixels``: every pixel classified; the engine's free depth image of every camera;
+5. ``pieces``: tiles of unexplained pixels, carved by the other cameras (the dynamic part);
+6. ``memory``: the robot shadow's memory near the previous cycle's dynamic components;
+7. ``plausibility``: the rules on the dynamic components, the sheets under them;
+8. ``distance``: static BVH and the dynamic pieces near the robot (python-fcl);
+9. ``speed``: ISO/TS 15066 (or the ramp).
+
+The region is ``R = R3_static U Delta_kept U sheets U memory``. The verdict's manifolds
+(``hull``, ``robot_occlusion``, ``region_r2``, ``region``, ``region_dynamic``) are built
+only when read, off the hot path.
 
 ``Monitor.step`` never raises: any fault gives a verdict with ``speed_scale = 0`` that names
 it, and faults latch until :meth:`Monitor.reset`.
@@ -26,21 +32,20 @@ from typing import Any, TypeVar
 
 import manifold3d as m3
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from .cell import Cell
-from .distance import DistanceResult, RobotDistanceModel
+from .distance import DistanceResult, RobotDistanceModel, winding_numbers
+from .engine.dynamic_rules import DynamicContext, DynamicResult, judge_dynamic
+from .engine.pieces import CameraStack, CarveParams, PieceSet, carve, piece_volumes
+from .engine.pixels import classify_frame, free_pyramid, memory_segments, tile_segments
+from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
+from .engine.static_model import StaticModel, TouchGrid
 from .errors import PolyhullError
-from .floor import floor_shell
 from .frames import DepthFrame
-from .fusion import clip_to_box, depth_hull
-from .occlusion import grow_piece, robot_occlusion
-from .plausibility import (
-    PlausibilityContext,
-    RemovedComponent,
-    apply_plausibility,
-    mesh_volume_centroid,
-)
-from .regions import CameraStatic, check_manifold
+from .occlusion import robot_occlusion
+from .plausibility import _ICOSPHERE, RemovedComponent
+from .regions import check_manifold
 from .robot import Robot
 from .speed import decide_speed
 from .typed import ArrayF64
@@ -50,6 +55,49 @@ __all__ = ["Monitor", "Verdict"]
 _T = TypeVar("_T")
 
 
+def _hexahedra_manifold(vertices: ArrayF64) -> m3.Manifold:
+    """The union of convex hexahedra (N, 8, 3) as one manifold."""
+    hulls = [m3.Manifold.hull_points(v) for v in vertices]
+    hulls = [h for h in hulls if not h.is_empty()]
+    if not hulls:
+        return m3.Manifold()
+    return check_manifold(m3.Manifold.batch_boolean(hulls, m3.OpType.Add), "dynamic region")
+
+
+@dataclass(eq=False)
+class _CycleGeometry:
+    """What a verdict needs to build its manifolds when they are read."""
+
+    static: StaticModel
+    zone: m3.Manifold
+    pieces: ArrayF64  # (N, 8, 3) all dynamic pieces before the rules (with memory)
+    kept: ArrayF64  # (K, 8, 3) kept dynamic pieces and sheet boxes
+    robot_body: Callable[[], m3.Manifold]
+    occlusion: Callable[[], m3.Manifold]
+    full_pieces: Callable[[], ArrayF64]
+    cache: dict[str, m3.Manifold] = field(default_factory=dict)
+
+    def get(self, name: str) -> m3.Manifold:
+        if name not in self.cache:
+            self.cache[name] = self._build(name)
+        return self.cache[name]
+
+    def _build(self, name: str) -> m3.Manifold:
+        s = self.static
+        if name == "region_dynamic":
+            return _hexahedra_manifold(self.kept) ^ self.zone
+        if name == "region":
+            return check_manifold(s.region + self.get("region_dynamic"), "region R3")
+        if name == "region_r2":
+            dyn = _hexahedra_manifold(self.pieces) ^ self.zone
+            return check_manifold((s.region_r2 + dyn) - s.solids - self.robot_body(), "region R2")
+        if name == "hull":
+            return check_manifold(s.hull + (_hexahedra_manifold(self.full_pieces()) ^ self.zone), "hull C")
+        if name == "robot_occlusion":
+            return self.occlusion()
+        raise KeyError(name)
+
+
 @dataclass(frozen=True, eq=False)
 class Verdict:
     """The answer of one cycle.
@@ -57,11 +105,8 @@ class Verdict:
     Attributes:
         stamp: Cycle time [s].
         q: Joint positions used [rad] (empty when the joint state was unusable).
-        hull: The depth hull C = R1 (world frame).
-        robot_occlusion: The robot occlusion M.
-        region_r2: R2 = C minus M (with shadow memory), static solids and the robot.
-        region: R3, what the distance is measured to.
-        removed: Components removed by the plausibility rules, each with its rule.
+        removed: Components removed by the plausibility rules, each with its rule (the
+            static ones, judged once, then this cycle's).
         min_distance: Minimum distance between the region and the robot [m] (inf: none).
         closest_points: (2, 3) closest points [m] (on the region, on the robot) or None.
         closest_link: Name of the closest robot link, or None.
@@ -71,14 +116,14 @@ class Verdict:
         faults: Latched faults; non-empty means stop.
         warnings: Conditions reported without stopping (e.g. cycle over its deadline).
         timings: Duration of each stage and ``total`` [ms].
+        counts: Per-cycle sizes: unexplained pixels, initial and kept pieces.
+
+    The regions (``hull``, ``robot_occlusion``, ``region_r2``, ``region``,
+    ``region_dynamic``) are manifold3d Manifolds built when first read.
     """
 
     stamp: float
     q: ArrayF64
-    hull: m3.Manifold
-    robot_occlusion: m3.Manifold
-    region_r2: m3.Manifold
-    region: m3.Manifold
     removed: tuple[RemovedComponent, ...]
     min_distance: float
     closest_points: ArrayF64 | None
@@ -89,6 +134,41 @@ class Verdict:
     faults: tuple[str, ...]
     warnings: tuple[str, ...]
     timings: dict[str, float] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    _geometry: _CycleGeometry | None = field(default=None, repr=False)
+    _fallback: m3.Manifold | None = field(default=None, repr=False)
+
+    def _region(self, name: str) -> m3.Manifold:
+        if self._geometry is None:
+            if name in ("robot_occlusion", "region_dynamic"):
+                return m3.Manifold()
+            return self._fallback if self._fallback is not None else m3.Manifold()
+        return self._geometry.get(name)
+
+    @property
+    def hull(self) -> m3.Manifold:
+        """The depth hull C = R1 (world frame)."""
+        return self._region("hull")
+
+    @property
+    def robot_occlusion(self) -> m3.Manifold:
+        """The robot occlusion M of the padded robot."""
+        return self._region("robot_occlusion")
+
+    @property
+    def region_r2(self) -> m3.Manifold:
+        """R2 = C minus M (with shadow memory), the static solids and the robot."""
+        return self._region("region_r2")
+
+    @property
+    def region(self) -> m3.Manifold:
+        """R3, what the distance is measured to."""
+        return self._region("region")
+
+    @property
+    def region_dynamic(self) -> m3.Manifold:
+        """This cycle's part of R3: the kept dynamic pieces and the sheets under them."""
+        return self._region("region_dynamic")
 
     @property
     def region_r1(self) -> m3.Manifold:
@@ -96,13 +176,15 @@ class Verdict:
         return self.hull
 
     def volumes(self) -> dict[str, float]:
-        """Volumes [m^3] of C, M, R1, R2 and R3."""
+        """Volumes [m^3] of C, M, R1, R2, R3 and the dynamic part (builds the manifolds)."""
+        hull = self.hull.volume()
         return {
-            "volume_hull": self.hull.volume(),
+            "volume_hull": hull,
             "volume_robot_occlusion": self.robot_occlusion.volume(),
-            "volume_r1": self.hull.volume(),
+            "volume_r1": hull,
             "volume_r2": self.region_r2.volume(),
             "volume_region": self.region.volume(),
+            "volume_region_dynamic": self.region_dynamic.volume(),
         }
 
     def to_json(self) -> dict[str, Any]:
@@ -124,6 +206,7 @@ class Verdict:
                     {"rule": r.rule, "volume": r.volume, "centroid": np.asarray(r.centroid).tolist()}
                     for r in self.removed
                 ],
+                "counts": dict(self.counts),
                 "timings_ms": dict(self.timings),
                 "stamp": self.stamp,
             }
@@ -135,6 +218,21 @@ class Verdict:
 class _CameraHistory:
     last_stamp: float | None = None
     invalid_share: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class CycleImages:
+    """One cycle's per-camera images (inspection, tests, the bench's oracles).
+
+    Attributes:
+        free: Camera name -> (H, W) engine free depth [m].
+        end: Camera name -> (H, W) end of each pixel's segment [m].
+        raster: Camera name -> the padded robot's raster.
+    """
+
+    free: dict[str, np.ndarray]
+    end: dict[str, np.ndarray]
+    raster: dict[str, RobotRaster]
 
 
 class Monitor:
@@ -152,45 +250,33 @@ class Monitor:
         *,
         references: Mapping[str, np.ndarray] | None = None,
         robot: Robot | None = None,
+        carve_params: CarveParams | None = None,
+        static: StaticModel | None = None,
     ) -> None:
-        """Precompute references, static camera regions and robot models.
+        """Precompute references, the static model and the robot models.
 
         Args:
             cell: The cell.
             references: Reference depth per camera (H, W) [m]; rendered from the cell's
                 CAD (floor and static obstacles) when omitted.
             robot: The robot model; loaded from ``cell.robot`` when omitted.
+            carve_params: How finely the dynamic pieces are split (defaults otherwise).
+            static: A static model built before for the same cell and references.
 
         Raises:
             PolyhullError: the cell cannot be monitored (bad reference, geometry failure).
         """
         self.cell = cell
-        params = cell.reconstruction
         if references is None:
             from .raycast import render_reference
 
             references = render_reference(cell)
-        self._statics: list[CameraStatic] = []
-        for cam in cell.cameras:
-            if cam.name not in references:
-                raise PolyhullError(f"no reference depth for camera '{cam.name}'")
-            ref = np.asarray(references[cam.name], dtype=np.float64)
-            self._statics.append(CameraStatic(cam, ref, params.block))
-        self._zone = cell.zone.manifold()
-        # Clipped to the zone's box once: M is a subset of Z, where the clip changes nothing,
-        # and the occlusion booleans skip the frustum parts beyond the walls.
-        self._free_static = clip_to_box([s.free_static for s in self._statics], self._zone)
-        # Clipped to Z: M (a subset of it) then stays inside the zone.
-        self._free_static_union = check_manifold(
-            m3.Manifold.batch_boolean([f for f in self._free_static if not f.is_empty()], m3.OpType.Add)
-            ^ self._zone,
-            "static free region",
-        )
-        self._hull_static = check_manifold(self._zone - self._free_static_union, "static hull")
-        solids = [o.manifold() for o in cell.solid_obstacles]
-        self._solids = m3.Manifold.batch_boolean(solids, m3.OpType.Add) if solids else m3.Manifold()
-        self._support = m3.Manifold.batch_boolean([o.manifold() for o in cell.obstacles], m3.OpType.Add) if cell.obstacles else m3.Manifold()
-        self._obstacle_manifolds = tuple(o.manifold() for o in cell.obstacles)
+        self.static = static if static is not None else StaticModel.load_or_build(cell, dict(references))
+        self._zone = self.static.zone
+        self._stack = CameraStack.of(cell.cameras)
+        self._carve = carve_params or CarveParams()
+        self._dyn_ctx = DynamicContext.of(cell, self.static.sheets, self.static.touch)
+        self._static_region_mesh = _mesh_arrays(self.static.region)
         if robot is None and cell.robot is not None:
             robot = Robot.from_spec(cell.robot)
         self.robot = robot
@@ -198,19 +284,21 @@ class Monitor:
         # Pieces grow by at most padding * sqrt(3) (cube corners): that is the margin added
         # to the protective separation distance.
         self._margin = self._padding * math.sqrt(3.0)
+        self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         if robot is not None:
             moving = _moving_links(robot)
             geometry = robot.link_geometry()
             self._distance_model: RobotDistanceModel | None = RobotDistanceModel(
                 {name: mesh for name, mesh in geometry.items() if name in moving}
             )
-            pieces = robot.link_convex_pieces()
-            self._pieces_link = {
-                name: [grow_piece(p, self._padding) for p in plist] for name, plist in pieces.items()
-            }
+            self._padded: PaddedPieces | None = PaddedPieces.build(robot.link_convex_pieces(), self._padding)
+            self._shell_planes = _shell_planes(self._padded, cell.plausibility.shell_thickness)
+            self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
         else:
             self._distance_model = None
-            self._pieces_link = {}
+            self._padded = None
+            self._shell_planes = []
+            self._piece_spheres = []
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -218,32 +306,15 @@ class Monitor:
         """Clear latched faults and the history (previous region, frame stamps)."""
         self._latched: list[str] = []
         self._history = {cam.name: _CameraHistory() for cam in self.cell.cameras}
-        self._prev_region: m3.Manifold | None = None
-        self._prev_components: tuple[m3.Manifold, ...] | None = None
+        self._prev_lo: ArrayF64 | None = None
+        self._prev_hi: ArrayF64 | None = None
         self._prev_stamp: float | None = None
-
-    @property
-    def statics(self) -> tuple[CameraStatic, ...]:
-        """The precomputed static part of every camera."""
-        return tuple(self._statics)
+        self.last_images: CycleImages | None = None
 
     @property
     def hull_static(self) -> m3.Manifold:
         """The depth hull of the empty cell (all frames equal to the references)."""
-        return self._hull_static
-
-    # -- per-camera inspection -------------------------------------------------------
-    def camera_regions(self, frames: Mapping[str, DepthFrame]) -> dict[str, m3.Manifold]:
-        """C(i) = Z \\ F(i) for every camera with a frame (inspection, not the hot path)."""
-        out = {}
-        for static in self._statics:
-            frame = frames.get(static.camera.name)
-            if frame is None or frame.shape != static.camera.shape:
-                out[static.camera.name] = self._zone
-                continue
-            free, _ = static.free_region(frame.depth)
-            out[static.camera.name] = self._zone - free
-        return out
+        return self.static.hull
 
     # -- the cycle -------------------------------------------------------------------
     def step(
@@ -273,9 +344,17 @@ class Monitor:
         try:
             return self._step(frames, q, stamp, q_stamp, t_start, timings, faults, warnings)
         except Exception as exc:  # noqa: BLE001 - the controller loop must never see one
-            name = type(exc).__name__
-            faults.append(f"internal: {name}: {exc}")
-            return self._stop_verdict(stamp, q, faults, warnings, timings, t_start)
+            faults.append(f"internal: {type(exc).__name__}: {exc}")
+            try:
+                return self._stop_verdict(stamp, q, faults, warnings, timings, t_start)
+            except Exception as exc2:  # noqa: BLE001 - last resort, no formatting of inputs
+                return Verdict(
+                    stamp=math.nan, q=np.zeros(0), removed=(), min_distance=0.0, closest_points=None,
+                    closest_link=None, speed_scale=0.0, allowed_speed=0.0,
+                    separation_distance=math.inf,
+                    faults=(*self._latched, f"internal: {type(exc2).__name__}"),
+                    warnings=(), _fallback=self._zone,
+                )
 
     def _timed(self, timings: dict[str, float], stage: str, fn: Callable[[], _T]) -> _T:
         t0 = time.perf_counter()
@@ -286,26 +365,28 @@ class Monitor:
 
     def _stop_verdict(
         self,
-        stamp: float | None,
-        q: ArrayF64 | None,
+        stamp: object,
+        q: object,
         faults: list[str],
         warnings: list[str],
         timings: dict[str, float],
         t_start: float,
-        hull: m3.Manifold | None = None,
     ) -> Verdict:
         for f in faults:
             if f not in self._latched:
                 self._latched.append(f)
         timings["total"] = (time.perf_counter() - t_start) * 1e3
-        empty = m3.Manifold()
+        try:
+            st = float(stamp)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            st = math.nan
+        try:
+            qv = np.asarray(q, dtype=np.float64).reshape(-1) if q is not None else np.zeros(0)
+        except (TypeError, ValueError):
+            qv = np.zeros(0)
         return Verdict(
-            stamp=float(stamp) if stamp is not None and math.isfinite(stamp) else math.nan,
-            q=np.asarray(q, dtype=np.float64).reshape(-1) if q is not None else np.zeros(0),
-            hull=hull if hull is not None else self._zone,
-            robot_occlusion=empty,
-            region_r2=hull if hull is not None else self._zone,
-            region=hull if hull is not None else self._zone,
+            stamp=st if math.isfinite(st) else math.nan,
+            q=qv,
             removed=(),
             min_distance=0.0,
             closest_points=None,
@@ -316,24 +397,35 @@ class Monitor:
             faults=tuple(self._latched),
             warnings=tuple(warnings),
             timings=timings,
+            _fallback=self._zone,
         )
 
-    def _check_q(self, q: ArrayF64 | None, stamp: float, q_stamp: float | None, faults: list[str]) -> ArrayF64 | None:
+    def _check_q(self, q: object, stamp: float, q_stamp: object, faults: list[str]) -> ArrayF64 | None:
         if self.robot is None:
             return np.zeros(0)
         if q is None:
             faults.append("joint state: missing")
             return None
+        if isinstance(q, str | bytes) or not _is_real_array(q):
+            faults.append(f"joint state: invalid: q must be a sequence of real numbers [rad], got {type(q).__name__}")
+            return None
         try:
-            qv = self.robot.check_q(q)
+            qv = self.robot.check_q(q)  # type: ignore[arg-type]
         except PolyhullError as exc:
             faults.append(f"joint state: invalid: {exc}")
             return None
-        if q_stamp is not None and stamp - q_stamp > self.cell.safety.joint_state_max_age:
-            faults.append(
-                f"joint state: stale ({stamp - q_stamp:.3f} s old > "
-                f"{self.cell.safety.joint_state_max_age} s)"
-            )
+        if qv.ndim != 1:
+            faults.append(f"joint state: invalid: q must have shape ({self.robot.dof},), got {qv.shape}")
+            return None
+        if q_stamp is not None:
+            try:
+                age = stamp - float(q_stamp)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                faults.append(f"joint state: q_stamp must be a time [s], got {q_stamp!r}")
+                return None
+            limit = self.cell.safety.joint_state_max_age
+            if not age <= limit:
+                faults.append(f"joint state: stale ({age:.4f} s old > {limit:.4f} s)")
         return qv
 
     def _frame_faults(self, frames: Mapping[str, DepthFrame], stamp: float, faults: list[str]) -> dict[str, np.ndarray]:
@@ -344,8 +436,7 @@ class Monitor:
         for name in frames:
             if name not in known:
                 faults.append(f"camera '{name}': frame for an unknown camera (cameras: {sorted(known)})")
-        for static in self._statics:
-            cam = static.camera
+        for cam in self.cell.cameras:
             frame = frames.get(cam.name)
             hist = self._history[cam.name]
             if frame is None:
@@ -358,8 +449,8 @@ class Monitor:
                 faults.append(f"camera '{cam.name}': frame shape {frame.shape} != {cam.shape}")
                 continue
             age = stamp - frame.stamp
-            if age > max_age:
-                faults.append(f"camera '{cam.name}': frame stale ({age:.3f} s old > {max_age} s)")
+            if not age <= max_age:
+                faults.append(f"camera '{cam.name}': frame stale ({age:.4f} s old > {max_age:.4f} s)")
                 continue
             if hist.last_stamp is not None:
                 if frame.stamp == hist.last_stamp:
@@ -377,9 +468,9 @@ class Monitor:
     def _step(
         self,
         frames: Mapping[str, DepthFrame],
-        q: ArrayF64 | None,
-        stamp: float | None,
-        q_stamp: float | None,
+        q: object,
+        stamp: object,
+        q_stamp: object,
         t_start: float,
         timings: dict[str, float],
         faults: list[str],
@@ -393,139 +484,174 @@ class Monitor:
         if stamp is None:
             stamps = [f.stamp for f in frames.values() if isinstance(f, DepthFrame)]
             stamp = max(stamps) if stamps else math.nan
-        if not math.isfinite(stamp):
-            faults.append(f"stamp: must be finite [s], got {stamp!r}")
+        if isinstance(stamp, bool) or not isinstance(stamp, int | float | np.integer | np.floating) or not math.isfinite(float(stamp)):
+            faults.append(f"stamp: must be a finite time [s], got {stamp!r}")
             return self._stop_verdict(stamp, q, faults, warnings, timings, t_start)
+        t = float(stamp)
 
-        # 1-2. frames -> per-camera free regions
-        usable = self._timed(timings, "frames", lambda: self._frame_faults(frames, stamp, faults))
+        usable = self._timed(timings, "frames", lambda: self._frame_faults(frames, t, faults))
         if not usable:
             faults.append("coverage lost: no usable camera frame")
-        free_regions: list[m3.Manifold] = []
+        qv = self._check_q(q, t, q_stamp, faults)
+        if qv is None:
+            return self._stop_verdict(t, q, faults, warnings, timings, t_start)
+
+        # kinematics and the padded robot in every image
+        T_links: dict[str, ArrayF64] = {}
+        padded_world: list[ArrayF64] = []
+        spheres = np.zeros((0, 4))
+        if self.robot is not None and self._padded is not None:
+            T_links = self._timed(timings, "kinematics", lambda: self.robot.link_transforms(qv))  # type: ignore[union-attr]
+            padded_world = self._padded.world(T_links)
+            spheres = np.array(
+                [
+                    [*(T_links[n][:3, :3] @ c + T_links[n][:3, 3]), r]
+                    for n, (c, r) in zip(self._padded.links, self._piece_spheres, strict=True)
+                ]
+            ).reshape(-1, 4)
         t0 = time.perf_counter()
-        for static in self._statics:
-            depth = usable.get(static.camera.name)
+        rasters: dict[str, RobotRaster] = {}
+        for cam in cell.cameras:
+            if padded_world:
+                rasters[cam.name] = rasterize_robot(cam, padded_world, self._padded)  # type: ignore[arg-type]
+        timings["robot_raster"] = (time.perf_counter() - t0) * 1e3
+
+        # pixels
+        t0 = time.perf_counter()
+        free_imgs: list[np.ndarray | None] = []
+        end_imgs: list[np.ndarray | None] = []
+        pyramids = []
+        active = np.zeros(len(cell.cameras), dtype=bool)
+        init_parts = []
+        unexplained = 0
+        inf_img: dict[tuple[int, int], np.ndarray] = {}
+        for i, (cam, s) in enumerate(zip(cell.cameras, self.static.cameras, strict=True)):
+            depth = usable.get(cam.name)
+            raster = rasters.get(cam.name)
+            if raster is None:
+                key = cam.shape
+                if key not in inf_img:
+                    inf_img[key] = np.full(cam.shape, np.inf, dtype=np.float32)
+                shadow = inf_img[key]
+                covered = np.zeros(cam.shape, dtype=bool)
+            else:
+                shadow = raster.shadow_start
+                covered = raster.covered
+            cls = classify_frame(
+                depth if depth is not None else self._blind[cam.name],
+                s.reference, s.lower, s.upper, s.free_static, shadow,
+                near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
+                is_color=cam.kind == "color",
+            )
+            free_imgs.append(cls.free)
+            end_imgs.append(cls.end)
+            unexplained += cls.unexplained
+            tiles = tile_segments(cls.free, cls.end, covered, cell.reconstruction.tile)
+            if len(tiles):
+                init_parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
             if depth is None:
-                continue  # a camera with no frame frees nothing
-            free, info = static.free_region(depth)
-            free_regions.append(free)
-            hist = self._history[static.camera.name]
-            if hist.invalid_share is not None and info.invalid_share - hist.invalid_share > safety.invalid_jump:
+                pyramids.append(None)
+                continue
+            active[i] = True
+            pyramids.append(free_pyramid(cls.free))
+            hist = self._history[cam.name]
+            if hist.invalid_share is None and cls.invalid_share > safety.invalid_jump:
                 faults.append(
-                    f"camera '{static.camera.name}': contamination or masking: invalid pixels "
-                    f"jumped from {hist.invalid_share:.1%} to {info.invalid_share:.1%}"
+                    f"camera '{cam.name}': blind or masked: {cls.invalid_share:.1%} of the pixels that "
+                    f"see the cell have no depth (> {safety.invalid_jump:.1%})"
                 )
-            hist.invalid_share = info.invalid_share
-            if info.far_side_share > safety.background_mismatch:
+            elif hist.invalid_share is not None and cls.invalid_share - hist.invalid_share > safety.invalid_jump:
                 faults.append(
-                    f"camera '{static.camera.name}': moved or miscalibrated: {info.far_side_share:.1%} "
+                    f"camera '{cam.name}': contamination or masking: invalid pixels "
+                    f"jumped from {hist.invalid_share:.1%} to {cls.invalid_share:.1%}"
+                )
+            hist.invalid_share = cls.invalid_share
+            if cls.far_side_share > safety.background_mismatch:
+                faults.append(
+                    f"camera '{cam.name}': moved or miscalibrated: {cls.far_side_share:.1%} "
                     f"of the background reads beyond the reference (> {safety.background_mismatch:.1%})"
                 )
-        timings["camera_regions"] = (time.perf_counter() - t0) * 1e3
+        timings["pixels"] = (time.perf_counter() - t0) * 1e3
+        initial = np.concatenate(init_parts) if init_parts else np.zeros((0, 7))
+        zlo = np.asarray(cell.zone.min, dtype=np.float64)
+        zhi = np.asarray(cell.zone.max, dtype=np.float64)
+        k = cell.reconstruction.k_of_n
 
-        # 3. fusion
-        hull = self._timed(
-            timings, "fusion", lambda: depth_hull(self._zone, free_regions, cell.reconstruction.k_of_n)
+        def run_carve(
+            init: np.ndarray, frees: list[np.ndarray | None], ends: list[np.ndarray | None]
+        ) -> tuple[PieceSet, bool]:
+            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, self._carve)
+
+        pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_imgs, end_imgs))
+        if overflow:
+            warnings.append(f"pieces: the budget of {self._carve.max_pieces} pieces was reached; undecided pieces kept whole")
+
+        # the robot shadow's memory near the previous dynamic components
+        dt = None if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
+        memory = PieceSet.empty()
+        if (
+            cell.reconstruction.shadow_memory
+            and rasters
+            and self._prev_lo is not None
+            and len(self._prev_lo)
+            and dt is not None
+        ):
+            memory = self._timed(
+                timings, "memory", lambda: self._memory(rasters, free_imgs, run_carve, safety.human_speed * dt + 1e-3)
+            )
+        allp = PieceSet.concat([pieces, memory])
+        vols = piece_volumes(allp.boxes, self._stack)
+        at_robot = _at_robot(allp.boxes, [rasters.get(c.name) for c in cell.cameras])
+
+        # plausibility of the dynamic components
+        ctx = DynamicContext(
+            **{
+                **self._dyn_ctx.__dict__,
+                "robot_shell_planes": tuple(_planes_world(p, T_links[n]) for n, p in self._shell_planes),
+                "robot_spheres": spheres,
+                "previous_lo": self._prev_lo,
+                "previous_hi": self._prev_hi,
+                "dt": dt,
+            }
         )
-        free_share = 1.0 - hull.volume() / cell.zone.volume
+        result: DynamicResult = self._timed(
+            timings,
+            "plausibility",
+            lambda: judge_dynamic(allp.vertices, vols, at_robot, ctx, lambda idx: _hexahedra_manifold(allp.vertices[idx])),
+        )
+        kept = np.concatenate([allp.vertices[result.keep], result.sheet_boxes])
+
+        # coverage: the free share of Z is at least 1 - (C_static + pieces) / Z
+        occupied = self.static.hull_volume + float(vols.sum())
+        free_share = 1.0 - occupied / cell.zone.volume
         if free_share < safety.min_free_share:
             faults.append(f"coverage lost: free share {free_share:.1%} < {safety.min_free_share:.1%}")
 
-        # 4. robot occlusion
-        qv = self._check_q(q, stamp, q_stamp, faults)
-        if qv is None:
-            return self._stop_verdict(stamp, q, faults, warnings, timings, t_start, hull=hull)
-        T_links: dict[str, ArrayF64] = {}
-        robot_body = m3.Manifold()
-        robot_pieces: tuple[m3.Manifold, ...] = ()
-        occlusion = m3.Manifold()
-        if self.robot is not None:
-            T_links = self._timed(timings, "kinematics", lambda: self.robot.link_transforms(qv))  # type: ignore[union-attr]
-            pieces = [
-                p @ T_links[name][:3, :3].T + T_links[name][:3, 3]
-                for name, plist in self._pieces_link.items()
-                for p in plist
-            ]
-            occlusion = self._timed(
-                timings,
-                "occlusion",
-                lambda: robot_occlusion(
-                    cell.cameras,
-                    self._free_static,
-                    self._free_static_union,
-                    pieces,
-                    cell.reconstruction.block,
-                ),
-            )
-            robot_pieces = tuple(m3.Manifold.hull_points(p) for p in pieces)
-            robot_body = m3.Manifold.batch_boolean(list(robot_pieces), m3.OpType.Add)
-
-        # 5. R2 with the shadow memory
-        def region_r2() -> m3.Manifold:
-            # (C \ M) U (C n M n G) == C \ (M \ G): one clean subtraction.
-            hidden = occlusion
-            if (
-                cell.reconstruction.shadow_memory
-                and self._prev_region is not None
-                and self._prev_stamp is not None
-                and not occlusion.is_empty()
-            ):
-                dt = max(stamp - self._prev_stamp, 0.0)
-                grown = _grow_near(self._prev_region, occlusion, safety.human_speed * dt + 1e-3)
-                if not grown.is_empty():
-                    hidden = occlusion - grown
-            r = m3.Manifold.batch_boolean([hull, hidden, self._solids, robot_body], m3.OpType.Subtract)
-            return check_manifold(r, "region R2")
-
-        r2 = self._timed(timings, "subtract", region_r2)
-
-        # 6. plausibility
-        dt_prev = None if self._prev_stamp is None else max(stamp - self._prev_stamp, 0.0)
-        ctx = PlausibilityContext(
-            zone=cell.zone,
-            params=cell.plausibility,
-            support=self._support,
-            known_objects=self._obstacle_manifolds + robot_pieces,
-            previous=self._prev_components,
-            dt=dt_prev,
-            occlusion=occlusion if not occlusion.is_empty() else None,
-        )
-        floor_removed: tuple[RemovedComponent, ...] = ()
-        r2_rules = r2
-        if cell.plausibility.floor_shell:
-            p = cell.plausibility
-            r2_rules, sheet = self._timed(
-                timings,
-                "floor_shell",
-                lambda: floor_shell(
-                    r2,
-                    hull,
-                    cell.zone,
-                    p.floor_shell_height,
-                    p.floor_shell_margin,
-                    m3.Manifold.batch_boolean([robot_body, self._solids], m3.OpType.Add),
-                ),
-            )
-            if not sheet.is_empty():
-                volume, centroid = mesh_volume_centroid(sheet)
-                floor_removed = (RemovedComponent("floor_shell", volume, centroid, sheet),)
-        result = self._timed(timings, "plausibility", lambda: apply_plausibility(r2_rules, ctx))
-        region = check_manifold(result.region, "region R3")
-
-        # 7. distance
+        # distance
         if self._distance_model is not None:
-            dist = self._timed(timings, "distance", lambda: self._distance_model.distance(region, T_links))  # type: ignore[union-attr]
+            dist = self._timed(
+                timings,
+                "distance",
+                lambda: self._distance_model.distance(  # type: ignore[union-attr]
+                    T_links, static=self.static.bvh, static_contains=self._static_contains, pieces=kept
+                ),
+            )
         else:
             dist = DistanceResult(math.inf, None, None)
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
 
-        # history for the next cycle
-        self._prev_region = region
-        self._prev_components = result.kept
-        self._prev_stamp = stamp
+        # history for the next cycle: the kept dynamic pieces' boxes (not the sheet boxes,
+        # which are the static noise layer under them, not an observation)
+        observed = allp.vertices[result.keep]
+        self._prev_lo, self._prev_hi = observed.min(axis=1), observed.max(axis=1)
+        self._prev_stamp = t
+        self.last_images = CycleImages(
+            free={c.name: f for c, f in zip(cell.cameras, free_imgs, strict=True) if f is not None},
+            end={c.name: e for c, e in zip(cell.cameras, end_imgs, strict=True) if e is not None},
+            raster=rasters,
+        )
 
-        # 8. speed
         latency = time.perf_counter() - t_start
         decision = self._timed(
             timings, "speed", lambda: decide_speed(dist.distance, safety, latency, self._margin)
@@ -537,14 +663,20 @@ class Monitor:
                 self._latched.append(f)
         stop = bool(self._latched)
         timings["total"] = (time.perf_counter() - t_start) * 1e3
+
+        geometry = _CycleGeometry(
+            static=self.static,
+            zone=self._zone,
+            pieces=allp.vertices,
+            kept=kept,
+            robot_body=lambda: _robot_body(padded_world),
+            occlusion=lambda: self._occlusion(padded_world),
+            full_pieces=lambda: self._full_pieces(usable, free_imgs, run_carve),
+        )
         return Verdict(
-            stamp=float(stamp),
+            stamp=t,
             q=np.asarray(qv, dtype=np.float64),
-            hull=hull,
-            robot_occlusion=occlusion,
-            region_r2=r2,
-            region=region,
-            removed=floor_removed + result.removed,
+            removed=self.static.removed + result.removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,
@@ -554,7 +686,182 @@ class Monitor:
             faults=tuple(self._latched),
             warnings=tuple(warnings),
             timings=timings,
+            counts={
+                "unexplained_pixels": int(unexplained),
+                "initial_pieces": int(initial.shape[0]),
+                "pieces": len(pieces),
+                "memory_pieces": len(memory),
+                "kept_pieces": int(result.keep.sum()),
+                "sheet_boxes": int(result.sheet_boxes.shape[0]),
+            },
+            _geometry=geometry,
         )
+
+    # -- parts of the cycle ------------------------------------------------------------
+    def _static_contains(self, points: ArrayF64) -> np.ndarray:
+        """Which points (P, 3) lie inside R3_static (touch grid first, then winding number)."""
+        near = self.static.touch.any_in(points, points)
+        out = np.zeros(len(points), dtype=bool)
+        if near.any() and self._static_region_mesh is not None:
+            v, t = self._static_region_mesh
+            out[near] = winding_numbers(points[near], v, t) > 0.5
+        return out
+
+    def _memory(
+        self,
+        rasters: Mapping[str, RobotRaster],
+        free_imgs: list[np.ndarray | None],
+        run_carve: Callable[..., tuple[PieceSet, bool]],
+        reach: float,
+    ) -> PieceSet:
+        """Pieces of ``C n M`` within ``reach`` [m] of the previous dynamic components.
+
+        Behind the padded robot (its back depth) in every robot-covered pixel, the segment
+        to the static free depth holds C n M (what the robot hides, not freed by this
+        camera); only pixels whose rays meet the previous components' boxes grown by
+        ``reach`` are built, then carved like any piece, and kept where they meet the boxes.
+        """
+        assert self._prev_lo is not None and self._prev_hi is not None
+        lo = self._prev_lo - reach
+        hi = self._prev_hi + reach
+        parts = []
+        ends: list[np.ndarray | None] = []
+        mem_free: list[np.ndarray | None] = []
+        corners = np.stack(
+            [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
+            axis=1,
+        )  # (B, 8, 3)
+        for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
+            raster = rasters.get(cam.name)
+            free = free_imgs[i]
+            if raster is None or free is None or not raster.covered.any():
+                ends.append(None)
+                mem_free.append(None)
+                continue
+            H, W = cam.shape
+            rows = np.nonzero(raster.covered.any(axis=1))[0]
+            cols = np.nonzero(raster.covered.any(axis=0))[0]
+            s_min = float(raster.back[raster.covered].min())
+            uv, z = cam.project(corners.reshape(-1, 3))
+            uv = uv.reshape(-1, 8, 2)
+            z = z.reshape(-1, 8)
+            ok = (z.max(axis=1) > max(cam.near, s_min)) & (z.min(axis=1) > 1e-6)
+            with np.errstate(invalid="ignore"):
+                pu0 = np.floor(uv[:, :, 0].min(axis=1) + 0.5)
+                pu1 = np.floor(uv[:, :, 0].max(axis=1) + 0.5)
+                pv0 = np.floor(uv[:, :, 1].min(axis=1) + 0.5)
+                pv1 = np.floor(uv[:, :, 1].max(axis=1) + 0.5)
+            ok &= (pu1 >= cols[0]) & (pu0 <= cols[-1]) & (pv1 >= rows[0]) & (pv0 <= rows[-1])
+            sel = np.nonzero(ok)[0]
+            rects = np.column_stack([pu0[sel], pu1[sel], pv0[sel], pv1[sel]]).astype(np.int64)
+            zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
+            f, e = memory_segments(raster.covered, raster.back, free, s.free_static, rects, zr)
+            mem_free.append(f)
+            ends.append(e)
+            tiles = tile_segments(f, e, raster.covered, self.cell.reconstruction.tile)
+            if len(tiles):
+                parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
+        if not parts:
+            return PieceSet.empty()
+        # carved by the cameras' free depth; split along the memory segments
+        pieces, _ = run_carve(np.concatenate(parts), mem_free, ends)
+        if not len(pieces):
+            return pieces
+        grid = TouchGrid.of_boxes(lo, hi, np.asarray(self.cell.zone.min) - 1.0, np.asarray(self.cell.zone.max) + 1.0, 0.05)
+        return pieces.select(grid.any_in(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1)))
+
+    def _full_pieces(
+        self,
+        usable: Mapping[str, np.ndarray],
+        free_imgs: list[np.ndarray | None],
+        run_carve: Callable[..., tuple[PieceSet, bool]],
+    ) -> ArrayF64:
+        """Every camera's segments without the robot's shadow clip (for the hull C)."""
+        parts = []
+        ends: list[np.ndarray | None] = []
+        for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
+            free = free_imgs[i]
+            if free is None:
+                ends.append(None)
+                continue
+            ends.append(s.free_static)
+            tiles = tile_segments(free, s.free_static, np.zeros(cam.shape, dtype=bool), self.cell.reconstruction.tile)
+            if len(tiles):
+                parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
+        if not parts:
+            return np.zeros((0, 8, 3))
+        pieces, _ = run_carve(np.concatenate(parts), free_imgs, ends)
+        return pieces.vertices
+
+    def _occlusion(self, padded_world: list[ArrayF64]) -> m3.Manifold:
+        """M of the padded robot (built when read)."""
+        if not padded_world:
+            return m3.Manifold()
+        pad = self._padding
+        bands = [
+            (lambda z, c=cam: np.maximum(0.0, 2.0 * c.tau(z) - pad)) for cam in self.cell.cameras
+        ]
+        union = m3.Manifold.batch_boolean([f for f in self.static.free if not f.is_empty()], m3.OpType.Add) ^ self._zone
+        return robot_occlusion(self.cell.cameras, self.static.free, union, padded_world, bands)
+
+
+def _robot_body(padded_world: list[ArrayF64]) -> m3.Manifold:
+    if not padded_world:
+        return m3.Manifold()
+    return m3.Manifold.batch_boolean([m3.Manifold.hull_points(p) for p in padded_world], m3.OpType.Add)
+
+
+def _mesh_arrays(m: m3.Manifold) -> tuple[ArrayF64, np.ndarray] | None:
+    if m.is_empty():
+        return None
+    mesh = m.to_mesh64()
+    return np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def _is_real_array(q: object) -> bool:
+    try:
+        arr = np.asarray(q)
+    except Exception:  # noqa: BLE001 - ragged or exotic input
+        return False
+    return arr.dtype.kind in "iuf"
+
+
+def _sphere(vertices: ArrayF64) -> tuple[ArrayF64, float]:
+    c = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+    return c, float(np.linalg.norm(vertices - c, axis=1).max())
+
+
+def _shell_planes(padded: PaddedPieces, thickness: float) -> list[tuple[str, ArrayF64]]:
+    """Per padded piece, (F, 4) planes ``n . x <= d`` (link frame) of the piece grown by a
+    polytope inscribed in the ball of radius ``thickness``: inside the true shell."""
+    out = []
+    for name, v in zip(padded.links, padded.vertices, strict=True):
+        grown = (v[:, None, :] + thickness * _ICOSPHERE[None, :, :]).reshape(-1, 3)
+        eq = ConvexHull(grown).equations  # n . x + c <= 0 inside
+        out.append((name, np.column_stack([eq[:, :3], -eq[:, 3]])))
+    return out
+
+
+def _planes_world(planes: ArrayF64, T: ArrayF64) -> ArrayF64:
+    n = planes[:, :3] @ T[:3, :3].T
+    return np.column_stack([n, planes[:, 3] + n @ T[:3, 3]])
+
+
+def _at_robot(boxes: np.ndarray, rasters: list[RobotRaster | None]) -> np.ndarray:
+    """(N,) whether each piece's pixel rectangle meets the robot's raster in its camera."""
+    out = np.zeros(len(boxes), dtype=bool)
+    for i, r in enumerate(rasters):
+        if r is None:
+            continue
+        sel = np.nonzero(boxes[:, 0] == i)[0]
+        if len(sel) == 0:
+            continue
+        sat = np.zeros((r.covered.shape[0] + 1, r.covered.shape[1] + 1), dtype=np.int64)
+        sat[1:, 1:] = r.covered.cumsum(0).cumsum(1)
+        b = boxes[sel].astype(np.int64)
+        u0, u1, v0, v1 = b[:, 1], b[:, 2] + 1, b[:, 3], b[:, 4] + 1
+        out[sel] = (sat[v1, u1] - sat[v0, u1] - sat[v1, u0] + sat[v0, u0]) > 0
+    return out
 
 
 def _moving_links(robot: Robot) -> frozenset[str]:
@@ -572,31 +879,3 @@ def _moving_links(robot: Robot) -> frozenset[str]:
         T = robot.link_transforms(rng.uniform(lo, hi))
         moving |= {n for n in ref if not np.allclose(T[n], ref[n], atol=1e-9)}
     return frozenset(moving)
-
-
-def _box(lo: np.ndarray, hi: np.ndarray) -> m3.Manifold:
-    size = tuple(float(x) for x in np.maximum(hi - lo, 1e-9))
-    return m3.Manifold.cube(size).translate(tuple(float(x) for x in lo))
-
-
-def _grow_near(region: m3.Manifold, target: m3.Manifold, margin: float) -> m3.Manifold:
-    """A box containing every point of ``target`` within ``margin`` [m] of ``region``.
-
-    The points of ``region`` that matter lie in the box of ``target`` grown by ``margin``;
-    the bounding box of those points, grown by ``margin``, contains every point within
-    ``margin`` of them. A superset keeps more of M in R, which is conservative.
-    """
-    if region.is_empty() or target.is_empty():
-        return m3.Manifold()
-    lo, hi = _bounds(target)
-    near = region ^ _box(lo - margin, hi + margin)
-    if near.is_empty():
-        return m3.Manifold()
-    lo, hi = _bounds(near)
-    return _box(lo - margin, hi + margin)
-
-
-def _bounds(m: m3.Manifold) -> tuple[np.ndarray, np.ndarray]:
-    bb = m.bounding_box()
-    return np.asarray(bb[:3], dtype=np.float64), np.asarray(bb[3:], dtype=np.float64)
-

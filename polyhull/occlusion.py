@@ -1,4 +1,4 @@
-"""The robot occlusion M (paper 3.2, SPEC section 2).
+"""The robot occlusion M as a manifold (paper 3.2, SPEC section 2), for inspection.
 
 ``M = F_static \\ F_static+robot``: points some camera sees free in the empty cell but no
 camera sees free once the robot stands at q. With ``S_i`` the robot's shadow from camera i
@@ -6,22 +6,21 @@ camera sees free once the robot stands at q. With ``S_i`` the robot's shadow fro
 The shadow of a convex body from a point is convex, so a convex link piece P casts
 ``hull(P U proj_far(P))``.
 
-Link pieces are grown by the robot padding (a declared tolerance that absorbs depth noise
-in front of robot surfaces and the block resolution of camera regions) with the Minkowski
-sum of a cube of half-size ``padding``: every face moves out by at least ``padding`` and no
-point by more than ``padding * sqrt(3)``, the margin the monitor adds to the protective
-separation distance.
+The cycle does not build this manifold: it works per pixel with the raster of
+:mod:`polyhull.engine.robot_raster`. :attr:`polyhull.Verdict.robot_occlusion` builds it
+when read, from the same padded pieces, each shadow starting ``band(z)`` [m] before the
+piece (the raster's tolerance band), so that it shows the same set at the resolution of the
+pieces rather than of the pixels.
 
-Per camera, each shadow is grown further by the reach of the camera's block construction
-(:func:`resolution_growth`): a measurement consistent with the robot leaves a band of about
-``2 tau`` in front of its surfaces and up to two blocks beside its silhouette unfree. That
-band is as unobservable as the shadow itself; like the shadow, nobody can enter it without
-first being seen in R, and the shadow memory of the monitor keeps such a person in R.
+Link pieces are padded (``robot.padding``) with the Minkowski sum of a cube of half-size
+``padding`` (:func:`grow_piece`): every face moves out by at least ``padding`` and no point
+by more than ``padding * sqrt(3)``, the margin the monitor adds to the protective
+separation distance.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import manifold3d as m3
 import numpy as np
@@ -30,7 +29,7 @@ from .camera import Camera
 from .regions import check_manifold
 from .typed import ArrayF64
 
-__all__ = ["grow_piece", "resolution_growth", "shadow_hull", "robot_shadows", "robot_occlusion"]
+__all__ = ["grow_piece", "shadow_hull", "robot_shadows", "robot_occlusion"]
 
 _CUBE = np.array(
     [[x, y, z] for x in (-1.0, 1.0) for y in (-1.0, 1.0) for z in (-1.0, 1.0)], dtype=np.float64
@@ -49,48 +48,29 @@ def grow_piece(vertices: ArrayF64, padding: float) -> ArrayF64:
     return (v[:, None, :] + padding * _CUBE[None, :, :]).reshape(-1, 3)
 
 
-def resolution_growth(camera: Camera, block: int, depth: float) -> tuple[float, float]:
-    """How far the camera's region construction can reach beyond a surface at ``depth`` [m].
-
-    A block takes the minimum free depth of its pixels and a grid corner the minimum of
-    its blocks, so a surface seen in a block shortens the free depth up to two blocks
-    sideways: ``lateral = 2 * sqrt(2) * block * depth / f``. Along the ray, a measurement
-    consistent with the surface frees up to about ``2 * tau`` in front of it.
-
-    Returns:
-        (lateral [m], toward the camera [m]).
-    """
-    f = min(camera.intrinsics.fx, camera.intrinsics.fy)
-    lateral = 2.0 * np.sqrt(2.0) * block * depth / f
-    toward = 2.0 * float(camera.tau(depth))
-    return lateral, toward
-
-
 def shadow_hull(
-    camera: Camera, vertices_world: ArrayF64, block: int = 0
+    camera: Camera,
+    vertices_world: ArrayF64,
+    band: Callable[[ArrayF64], ArrayF64] | None = None,
 ) -> m3.Manifold | None:
     """The shadow of a convex piece from ``camera`` up to its far plane, or None.
 
-    With ``block > 0`` the piece is first grown by :func:`resolution_growth` at its farthest
-    depth (a cube sideways, a pull toward the camera), so the shadow covers what the
-    camera's block construction leaves unfree around the piece.
+    Args:
+        camera: The camera.
+        vertices_world: (K, 3) vertices of the convex piece [m].
+        band: Optional map from z-depth [m] to how far [m] before the piece the shadow
+            starts along each ray (the piece's vertices are pulled toward the camera by it).
 
     Returns None when part of the piece is not in front of the camera (a piece straddling
-    the camera plane casts no bounded convex shadow); leaving a shadow out only shrinks M,
-    which keeps the region conservative.
+    the camera plane casts no bounded convex shadow).
     """
     pc = camera.world_to_camera(vertices_world)
     z = pc[:, 2]
     if np.any(z <= 1e-6):
         return None
-    if block > 0:
-        lateral, toward = resolution_growth(camera, block, float(z.max()))
-        grown = (pc[:, None, :] + lateral * _CUBE[None, :, :]).reshape(-1, 3)
-        zg = grown[:, 2]
-        if np.any(zg <= 1e-6):
-            return None
-        pulled = grown * np.maximum(1.0 - toward / zg, 1e-3)[:, None]
-        pc = np.concatenate([grown, pulled])
+    if band is not None:
+        pulled = pc * np.maximum(1.0 - np.asarray(band(z)) / z, 1e-3)[:, None]
+        pc = np.concatenate([pc, pulled])
         z = pc[:, 2]
     far_pts = pc * (camera.far / z)[:, None]
     far_pts = far_pts[z < camera.far]
@@ -100,12 +80,14 @@ def shadow_hull(
 
 
 def robot_shadows(
-    camera: Camera, pieces_world: Sequence[ArrayF64], block: int = 0
+    camera: Camera,
+    pieces_world: Sequence[ArrayF64],
+    band: Callable[[ArrayF64], ArrayF64] | None = None,
 ) -> list[m3.Manifold]:
     """Shadows of the (already padded) convex robot pieces from one camera."""
     out = []
     for piece in pieces_world:
-        h = shadow_hull(camera, piece, block)
+        h = shadow_hull(camera, piece, band)
         if h is not None:
             out.append(h)
     return out
@@ -116,26 +98,25 @@ def robot_occlusion(
     free_static: Sequence[m3.Manifold],
     free_static_union: m3.Manifold,
     pieces_world: Sequence[ArrayF64],
-    block: int = 0,
+    bands: Sequence[Callable[[ArrayF64], ArrayF64] | None] | None = None,
 ) -> m3.Manifold:
     """The robot occlusion M (world frame).
 
     Args:
         cameras: The cameras, in the order of ``free_static``.
         free_static: F_static(i), the free region of each camera in the empty cell.
-        free_static_union: The union of ``free_static`` (precomputed).
+        free_static_union: The union of ``free_static``.
         pieces_world: Padded convex robot pieces at q, (K, 3) world vertices each.
-        block: Block side [px] of the camera regions; > 0 grows each shadow by what the
-            block construction leaves unfree around the robot (:func:`resolution_growth`),
-            so that measured noise bands in front of the robot fall into M.
+        bands: Per camera, the shadow's band before the pieces (see :func:`shadow_hull`).
     """
     if not pieces_world:
         return m3.Manifold()
+    bands = list(bands) if bands is not None else [None] * len(cameras)
     seen_with_robot = []
-    for cam, free in zip(cameras, free_static, strict=True):
+    for cam, free, band in zip(cameras, free_static, bands, strict=True):
         if free.is_empty():
             continue
-        shadows = robot_shadows(cam, pieces_world, block)
+        shadows = robot_shadows(cam, pieces_world, band)
         seen_with_robot.append(m3.Manifold.batch_boolean([free, *shadows], m3.OpType.Subtract))
     occlusion = m3.Manifold.batch_boolean([free_static_union, *seen_with_robot], m3.OpType.Subtract)
     return check_manifold(occlusion, "robot occlusion M")

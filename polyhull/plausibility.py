@@ -140,21 +140,35 @@ _EMPTY_BOX = np.array([np.inf, np.inf, np.inf, -np.inf, -np.inf, -np.inf])
 # --------------------------------------------------------------------------- values
 
 
-@dataclass(frozen=True, eq=False)
 class RemovedComponent:
-    """A component of R2 removed by a plausibility rule (reported in the verdict).
+    """A component removed by a plausibility rule (reported in the verdict).
 
     Attributes:
-        rule: The rule that removed it, one of ``RULE_ORDER``.
+        rule: The rule that removed it, one of ``RULE_ORDER`` or ``"sheet"`` (the noise
+            sheet in front of a known surface, judged at precompute).
         volume: Its volume [m^3].
         centroid: (3,) its volume centroid in the world frame [m].
-        mesh: The component, world frame.
+        mesh: The component, world frame (built when first read for dynamic components).
     """
 
-    rule: str
-    volume: float
-    centroid: ArrayF64
-    mesh: m3.Manifold
+    __slots__ = ("rule", "volume", "centroid", "_mesh")
+
+    def __init__(self, rule: str, volume: float, centroid: ArrayF64, mesh: object) -> None:
+        self.rule = rule
+        self.volume = float(volume)
+        self.centroid = np.asarray(centroid, dtype=np.float64)
+        self._mesh = mesh
+
+    @property
+    def mesh(self) -> m3.Manifold:
+        """The removed component as a manifold (world frame)."""
+        if isinstance(self._mesh, m3.Manifold):
+            return self._mesh
+        self._mesh = self._mesh.get()  # type: ignore[attr-defined]
+        return self._mesh
+
+    def __repr__(self) -> str:
+        return f"RemovedComponent(rule={self.rule!r}, volume={self.volume:.6g})"
 
 
 @dataclass(frozen=True, eq=False)

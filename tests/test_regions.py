@@ -10,11 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from polyhull.engine.pixels import classify_frame
+from polyhull.engine.static_model import StaticCamera
 from polyhull.regions import (
-    CameraStatic,
+    _pixel_corner_min,
     block_min,
+    conservative_surface,
     free_depth,
-    free_region_from_blocks,
     free_region_from_depth,
 )
 
@@ -90,63 +92,114 @@ def _reference(cam) -> np.ndarray:  # noqa: ANN001
 _SPECIAL = st.sampled_from([0.0, np.nan, np.inf, -np.inf, 0.1, 9.0])
 
 
+def _classify(static: StaticCamera, D: np.ndarray, shadow: np.ndarray | None = None):  # noqa: ANN202
+    cam = static.camera
+    if shadow is None:
+        shadow = np.full(cam.shape, np.inf, dtype=np.float32)
+    return classify_frame(
+        D, static.reference, static.lower, static.upper, static.free_static, shadow,
+        near=cam.near, far=cam.far, tau_a=static.tau_a, tau_min=cam.tolerance_min,
+        is_color=cam.kind == "color",
+    )
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     seed=st.integers(0, 2**31 - 1),
-    block=st.sampled_from([1, 4, 5, 8]),
     kind=st.sampled_from(["depth", "color"]),
     special=st.lists(_SPECIAL, min_size=0, max_size=30),
     spread=st.floats(0.0, 1.0),
 )
-def test_static_split_never_above_exact_block_min(
-    seed: int, block: int, kind: str, special: list[float], spread: float
-) -> None:
+def test_engine_free_depth_never_above_exact(seed: int, kind: str, special: list[float], spread: float) -> None:
+    """The pixel classes' free depth is at most the SPEC's exact free depth, every pixel,
+    whatever the frame (noise, people, REP 117 special values); a static pixel frees the
+    static free depth, which is itself at most the exact one."""
     cam = make_camera(width=40, height=30, kind=kind)
     B = _reference(cam)
-    static = CameraStatic(cam, B, block)
+    static = StaticCamera.build(cam, B, 2)
     rng = np.random.default_rng(seed)
     D = np.where(np.isfinite(B), B, 3.0) + rng.normal(0.0, 0.01 + 0.3 * spread * rng.uniform(), size=B.shape)
-    # Most pixels consistent with the background (noise), some a person in front.
     keep = rng.uniform(size=B.shape) < 0.8
     D = np.where(keep, np.where(np.isfinite(B), B + rng.normal(0, 0.003, B.shape), np.inf), D)
     idx = rng.integers(0, B.size, size=len(special))
     D.ravel()[idx] = special
     D = D.astype(np.float32)
-    fb, dirty, _ = static.free_blocks(D)
-    exact = block_min(free_depth(cam, D.astype(np.float64), B), block)
-    assert fb.shape == exact.shape
-    assert np.all(fb <= exact + 1e-9), np.max(fb - exact)
+    cls = _classify(static, D)
+    exact = free_depth(cam, D.astype(np.float64), B)
+    assert np.all(cls.free <= exact + 1e-6), float(np.max(cls.free - exact))
+    assert np.all(cls.free <= static.free_static)
+    # every pixel either frees its static free depth or has a segment up to it
+    seg = cls.free < cls.end
+    assert np.all(seg | (cls.free >= static.free_static))
 
 
-def test_static_split_clean_frame_reuses_static_region() -> None:
+def test_clean_frame_has_no_segment_and_a_person_has_one() -> None:
     cam = make_camera(width=40, height=30)
     B = _reference(cam)
-    D = np.where(np.isfinite(B) & (B <= cam.far), B, np.inf).astype(np.float32)
-    static = CameraStatic(cam, B, 4)
-    free, info = static.free_region(D)  # type: ignore[arg-type]  # float32 frames are accepted
-    assert free is static.free_static
-    assert info.dirty_blocks == 0
+    static = StaticCamera.build(cam, B, 2)
+    D = np.where(np.isfinite(B) & (B <= cam.far), B, 0.0).astype(np.float32)
+    assert _classify(static, D).unexplained == 0
     D2 = D.copy()
     D2[10:14, 20:24] = 1.0  # something appeared
-    fb, dirty, info2 = static.free_blocks(D2)  # type: ignore[arg-type]
-    assert dirty[2:4, 5:6].all() and info2.dirty_blocks == int(dirty.sum()) >= 1
+    cls = _classify(static, D2)
+    assert cls.unexplained == 16
+    assert np.all(cls.free[10:14, 20:24] < cls.end[10:14, 20:24])
+
+
+def test_robot_shadow_explains_pixels_behind_its_start() -> None:
+    """A reading at or behind the robot's shadow start has no segment (explained by the
+    robot); one well in front of it has a segment that ends at the shadow start."""
+    cam = make_camera(width=40, height=30)
+    B = np.full(cam.shape, 4.0)
+    static = StaticCamera.build(cam, B, 2)
+    shadow = np.full(cam.shape, np.inf, dtype=np.float32)
+    shadow[5:15, 5:15] = 2.0
+    D = np.full(cam.shape, 4.0, dtype=np.float32)
+    D[5:10, 5:15] = 2.2  # the robot's surface, behind the shadow start
+    D[10:15, 5:15] = 1.0  # a hand in front of the robot
+    cls = _classify(static, D, shadow)
+    assert not np.any(cls.free[5:10, 5:15] < cls.end[5:10, 5:15])
+    assert np.all(cls.free[10:15, 5:15] < cls.end[10:15, 5:15])
+    assert np.all(cls.end[10:15, 5:15] == np.float32(2.0))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), block=st.sampled_from([1, 2, 3, 4, 8]), H=st.integers(5, 30), W=st.integers(5, 30))
+def test_conservative_surface_never_behind_a_pixel(seed: int, block: int, H: int, W: int) -> None:
+    """The surface, interpolated at every pixel corner, is at or before the corner's
+    smallest pixel value (so over every pixel's whole footprint, being linear there)."""
+    rng = np.random.default_rng(seed)
+    w = -1.0 / (2.0 + rng.normal(0, 0.3, size=(H, W)).cumsum(axis=1) * 0.1)
+    w[rng.uniform(size=(H, W)) < 0.05] = -1.0 / 0.3  # jumps to "nothing free"
+    S = conservative_surface(w, block)
+    Hb, Wb = -(-H // block), -(-W // block)
+    wp = np.pad(w, ((0, Hb * block - H), (0, Wb * block - W)), mode="edge")
+    wc = _pixel_corner_min(wp)
+    ys, xs = np.mgrid[0 : Hb * block + 1, 0 : Wb * block + 1]
+    i = np.minimum(xs // block, Wb - 1)
+    j = np.minimum(ys // block, Hb - 1)
+    fx = (xs - i * block) / block
+    fy = (ys - j * block) / block
+    Ga, Gb, Gc, Gd = S[j, i], S[j, i + 1], S[j + 1, i + 1], S[j + 1, i]
+    interp = np.where(fx >= fy, Ga + (Gb - Ga) * fx + (Gc - Gb) * fy, Ga + (Gc - Gd) * fx + (Gd - Ga) * fy)
+    assert np.all(interp <= wc + 1e-9), float(np.max(interp - wc))
 
 
 @pytest.mark.parametrize("f", [0.8, 2.0, 5.5])
 def test_constant_free_depth_volume_is_frustum_slab(f: float) -> None:
     cam = make_camera(width=64, height=48, near=0.3, far=6.0)
     k = cam.intrinsics
-    region = free_region_from_blocks(cam, np.full((6, 8), f), 8)
+    region = free_region_from_depth(cam, np.full(cam.shape, f), 8)
     expected = k.width * k.height / (k.fx * k.fy) * (f**3 - cam.near**3) / 3.0
     assert region.volume() == pytest.approx(expected, rel=1e-9)
     # nothing free -> empty
-    assert free_region_from_blocks(cam, np.full((6, 8), cam.near), 8).is_empty()
+    assert free_region_from_depth(cam, np.full(cam.shape, cam.near), 8).is_empty()
 
 
 def test_free_depth_beyond_far_is_cut() -> None:
     cam = make_camera(width=16, height=16, far=6.0)
     k = cam.intrinsics
-    region = free_region_from_blocks(cam, np.full((2, 2), 50.0), 8)
+    region = free_region_from_depth(cam, np.full(cam.shape, 50.0), 8)
     expected = k.width * k.height / (k.fx * k.fy) * (cam.far**3 - cam.near**3) / 3.0
     assert region.volume() == pytest.approx(expected, rel=1e-9)
 

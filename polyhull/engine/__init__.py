@@ -1,0 +1,21 @@
+"""The surveillance engine: what changed in the images becomes convex pieces of the region.
+
+The stages, in the order :class:`polyhull.monitor.Monitor` (the pipeline) runs them:
+
+1. :mod:`.static_model` (once, when the monitor is built): per camera the band of depths
+   consistent with the empty cell and the static free depth ``f_static``; the fused static
+   hull ``C_static`` as a manifold; its plausibility verdicts (the noise sheets over the
+   floor and table tops, and whole components); a python-fcl BVH of what remains.
+2. :mod:`.robot_raster`: the padded robot's convex pieces at q rasterised into every
+   camera: which pixels it covers and the depth where its shadow starts.
+3. :mod:`.pixels`: every pixel classified in image space (static, explained by the robot,
+   unexplained) and the engine's free depth image of each camera.
+4. :mod:`.pieces`: the occluded frustum segments of the unexplained pixels, carved by the
+   other cameras' free depth into a union of convex hexahedra, the dynamic part ``Delta``.
+5. :mod:`.dynamic_rules`: the plausibility rules on the dynamic components.
+6. :mod:`polyhull.distance`: the distance from the region to the robot.
+
+The region of a cycle is ``R = R_static U Delta_kept U sheets`` where ``R_static`` is the
+static region after its plausibility rules, ``Delta_kept`` the dynamic pieces that pass
+theirs and ``sheets`` the static noise sheet under every kept dynamic component.
+"""

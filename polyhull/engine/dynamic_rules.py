@@ -1,0 +1,453 @@
+"""Plausibility of the dynamic part: the rules of SPEC section 2 on this cycle's components.
+
+Components are groups of pieces whose bounding boxes, grown by ``TOUCH_EPS``, meet a common
+voxel of ``GROUP_PITCH`` (a superset of "touch or overlap": grouping more only makes a rule
+fire less, since every rule spares a set whenever it spares a part of it). A component is judged together with
+what it touches:
+
+- a **kept static component** (the static touch grid marks voxels within ``support_eps``
+  of R3_static): R3_static passed the rules, so the union does, and the component is kept;
+- the **robot's occlusion M** (a piece that ends at the robot's shadow start, or that comes
+  within ``support_eps`` of the padded robot): supported and connected, like the old
+  paper-style rule that a person whose legs the robot hides stands on M;
+- the **boundary of Z** (walls and ceiling, within ``support_eps``): with
+  ``keep_at_boundary``, flying, too_small and too_thin never fire.
+
+The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported):
+
+1. ``too_small``: the sum of the pieces' volumes (at least the union's) is below
+   ``min_volume``;
+2. ``flying``: no piece reaches down to within ``support_eps`` of the top of a sheet (the
+   floor's or an obstacle top's, whose noise sheet stands in for the surface);
+3. ``too_thin``, part-wise: a piece that lies in a shell around a known object (within
+   ``shell_thickness`` of an obstacle, by the exact point-to-box distance, or of a padded
+   robot piece, by the hull of its vertices plus a polytope inscribed in the ball of that
+   radius: a subset of the true shell) or inside one noise sheet (the floor's or an
+   obstacle face's, judged at precompute) is removed, unless a piece of its component
+   outside every shell lies within ``floor_shell_margin`` of it: a standing person crosses
+   the floor's sheet and keeps their feet, a hand reaching into the robot's shell is
+   attached to an arm outside it. Pieces touching the boundary of Z are kept with
+   ``keep_at_boundary``;
+4. ``entry``: touches neither the boundary of Z, an entry area, M, nor comes within
+   ``human_speed_max * dt + support_eps`` of the previous cycle's region (bounding-box
+   gaps, which never exceed the true distance);
+5. ``teleport``: farther than ``human_speed_max * dt`` from every component of the previous
+   cycle, and touching neither the boundary, an entry area nor M.
+
+A kept component keeps the **noise sheet under it**: for every kept piece within a sheet's
+thickness of its face (floor, obstacle face), a box over the piece's footprint on that face,
+grown by ``floor_shell_margin``, as thick as the sheet (a standing person's feet are in the
+floor's sheet, within that margin of their legs).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from ..cell import Cell, PlausibilityParams, Zone
+from ..plausibility import RULE_ORDER, RemovedComponent
+from ..typed import ArrayF64
+from .static_model import Sheet, TouchGrid, _to_world
+
+__all__ = ["TOUCH_EPS", "DynamicContext", "DynamicResult", "group_boxes", "judge_dynamic", "box_vertices"]
+
+TOUCH_EPS = 1e-4
+"""Growth [m] of piece bounding boxes when grouping them into components."""
+
+
+@nb.njit(cache=True, nogil=True)
+def _find(parent, i):  # pragma: no cover - compiled
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@nb.njit(cache=True, nogil=True)
+def _group(a, b, dims):  # pragma: no cover - compiled
+    """Union of boxes sharing a voxel; a, b (N, 3) inclusive voxel index ranges."""
+    n = a.shape[0]
+    total = 0
+    for i in range(n):
+        total += (b[i, 0] - a[i, 0] + 1) * (b[i, 1] - a[i, 1] + 1) * (b[i, 2] - a[i, 2] + 1)
+    keys = np.empty(total, dtype=np.int64)
+    owner = np.empty(total, dtype=np.int64)
+    k = 0
+    for i in range(n):
+        for x in range(a[i, 0], b[i, 0] + 1):
+            for y in range(a[i, 1], b[i, 1] + 1):
+                for z in range(a[i, 2], b[i, 2] + 1):
+                    keys[k] = (x * dims[1] + y) * dims[2] + z
+                    owner[k] = i
+                    k += 1
+    order = np.argsort(keys)
+    parent = np.arange(n)
+    for j in range(1, total):
+        if keys[order[j]] == keys[order[j - 1]]:
+            ri = _find(parent, owner[order[j]])
+            rj = _find(parent, owner[order[j - 1]])
+            if ri != rj:
+                parent[ri] = rj
+    labels = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        labels[i] = _find(parent, i)
+    return labels
+
+
+SHEET_PITCH = 0.1
+"""Grid cell [m] on which the sheet boxes under kept pieces are merged (outward)."""
+
+GROUP_PITCH = 0.05
+"""Voxel side [m] of the grouping: boxes sharing a voxel are one component."""
+
+
+def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
+    """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growth by
+    ``eps`` meets a common voxel of ``GROUP_PITCH`` are grouped (a superset of the pairs
+    that overlap: grouping more only makes the rules fire less)."""
+    if lo.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    origin = lo.min(axis=0) - eps
+    a = np.floor((lo - eps - origin) / GROUP_PITCH).astype(np.int64)
+    b = np.floor((hi + eps - origin) / GROUP_PITCH).astype(np.int64)
+    dims = b.max(axis=0) + 1
+    roots = _group(a, b, dims)
+    _, labels = np.unique(roots, return_inverse=True)
+    return labels.astype(np.int64)
+
+
+def box_vertices(lo: ArrayF64, hi: ArrayF64) -> ArrayF64:
+    """(N, 8, 3) corners of boxes [lo, hi] (N, 3), in the piece vertex order."""
+    lo = np.atleast_2d(lo)
+    hi = np.atleast_2d(hi)
+    x = np.stack([lo[:, 0], hi[:, 0], hi[:, 0], lo[:, 0]] * 2, axis=1)
+    y = np.stack([lo[:, 1], lo[:, 1], hi[:, 1], hi[:, 1]] * 2, axis=1)
+    z = np.concatenate([np.repeat(lo[:, 2:3], 4, axis=1), np.repeat(hi[:, 2:3], 4, axis=1)], axis=1)
+    return np.stack([x, y, z], axis=2)
+
+
+@dataclass(frozen=True, eq=False)
+class DynamicContext:
+    """What the dynamic rules know besides the pieces.
+
+    Attributes:
+        zone: The zone.
+        params: The rules' switches and parameters.
+        sheets: The judged sheets (floor, obstacle faces) with their thickness.
+        static_touch: Voxels within ``support_eps`` of R3_static.
+        obstacle_boxes: (K, 2, 3) bounds of the obstacles (for too_thin).
+        robot_shell_planes: Per padded robot piece at q, (F, 4) planes ``n . x <= d`` of its
+            shell (the piece grown by an inscribed polytope of ``shell_thickness``).
+        robot_spheres: (M, 4) bounding spheres of the padded robot pieces at q.
+        entry_lo: (E, 3) entry area minima; ``entry_hi`` the maxima.
+        previous_lo: (P, 3) bounding boxes of the previous cycle's dynamic components, or
+            None without history; ``previous_hi`` their maxima.
+        dt: Time since the previous cycle [s], or None.
+        human_speed: v_h [m/s] of the sheet margin and the memory.
+    """
+
+    zone: Zone
+    params: PlausibilityParams
+    sheets: tuple[Sheet, ...]
+    static_touch: TouchGrid
+    obstacle_boxes: ArrayF64
+    robot_shell_planes: tuple[ArrayF64, ...]
+    robot_spheres: ArrayF64
+    entry_lo: ArrayF64
+    entry_hi: ArrayF64
+    previous_lo: ArrayF64 | None
+    previous_hi: ArrayF64 | None
+    dt: float | None
+
+    @classmethod
+    def of(cls, cell: Cell, sheets: Sequence[Sheet], static_touch: TouchGrid) -> DynamicContext:
+        """The parts that do not change between cycles."""
+        boxes = np.array([o.mesh.bounds for o in cell.obstacles], dtype=np.float64).reshape(-1, 2, 3)
+        areas = cell.plausibility.entry_areas
+        return cls(
+            zone=cell.zone,
+            params=cell.plausibility,
+            sheets=tuple(sheets),
+            static_touch=static_touch,
+            obstacle_boxes=boxes,
+            robot_shell_planes=(),
+            robot_spheres=np.zeros((0, 4)),
+            entry_lo=np.array([a.min for a in areas], dtype=np.float64).reshape(-1, 3),
+            entry_hi=np.array([a.max for a in areas], dtype=np.float64).reshape(-1, 3),
+            previous_lo=None,
+            previous_hi=None,
+            dt=None,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class DynamicResult:
+    """The dynamic part after its rules.
+
+    Attributes:
+        keep: (N,) which pieces are kept.
+        labels: (N,) component of every piece.
+        sheet_boxes: (S, 8, 3) the sheet boxes kept under kept components (box corners).
+        removed: The removed components with their rule (mesh built when read).
+        kept_lo: (K, 3) bounding boxes of the kept components (the next cycle's history);
+            ``kept_hi`` their maxima.
+    """
+
+    keep: np.ndarray
+    labels: np.ndarray
+    sheet_boxes: ArrayF64
+    removed: tuple[RemovedComponent, ...]
+    kept_lo: ArrayF64
+    kept_hi: ArrayF64
+
+
+def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF64:
+    """(N, M) Euclidean gap between boxes (0 when overlapping)."""
+    d = np.maximum(0.0, np.maximum(lo[:, None, :] - bhi[None, :, :], blo[None, :, :] - hi[:, None, :]))
+    return np.sqrt((d * d).sum(axis=2))
+
+
+@nb.njit(cache=True, nogil=True)
+def _inside_planes(points, planes, out):  # pragma: no cover - compiled
+    for i in range(points.shape[0]):
+        if out[i]:
+            continue
+        inside = True
+        for f in range(planes.shape[0]):
+            if points[i, 0] * planes[f, 0] + points[i, 1] * planes[f, 1] + points[i, 2] * planes[f, 2] > planes[f, 3]:
+                inside = False
+                break
+        out[i] = inside
+
+
+def _in_shell(points: ArrayF64, ctx: DynamicContext) -> np.ndarray:
+    """(N,) whether each point lies within ``shell_thickness`` of a known object."""
+    t = ctx.params.shell_thickness
+    inside = np.zeros(len(points), dtype=bool)
+    for lo, hi in ctx.obstacle_boxes:
+        near = np.all((points >= lo - t) & (points <= hi + t), axis=1)
+        if near.any():
+            d = np.maximum(0.0, np.maximum(lo - points[near], points[near] - hi))
+            inside[np.nonzero(near)[0][(d * d).sum(axis=1) <= t * t]] = True
+    for planes, sphere in zip(ctx.robot_shell_planes, ctx.robot_spheres, strict=False):
+        near = np.nonzero(np.linalg.norm(points - sphere[:3], axis=1) <= sphere[3] + t)[0]
+        if len(near):
+            sub = inside[near].copy()
+            _inside_planes(np.ascontiguousarray(points[near]), np.ascontiguousarray(planes), sub)
+            inside[near] = sub
+    return inside
+
+
+def _near_sheet(lo: ArrayF64, hi: ArrayF64, sheet: Sheet, pad: float) -> np.ndarray:
+    """Indices of the boxes [lo, hi] (N, 3) that meet the sheet's slab grown by ``pad``."""
+    a, b = sheet.world_box(pad)
+    return np.nonzero(np.all((hi >= a) & (lo <= b), axis=1))[0]
+
+
+def _local_bounds(vertices: ArrayF64, sheet: Sheet) -> tuple[ArrayF64, ArrayF64]:
+    M = sheet.to_local()
+    local = vertices @ M[:, :3].T + M[:, 3]
+    return local.min(axis=1), local.max(axis=1)
+
+
+def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
+    """(N,) whether each piece lies inside one sheet's shell (the static noise sheets)."""
+    out = np.zeros(vertices.shape[0], dtype=bool)
+    lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+    for sh in ctx.sheets:
+        idx = _near_sheet(lo, hi, sh, 0.0)
+        if len(idx) == 0:
+            continue
+        (x0, y0), (x1, y1) = sh.local_box()
+        llo, lhi = _local_bounds(vertices[idx], sh)
+        out[idx] |= (
+            (llo[:, 2] >= -1e-6) & (lhi[:, 2] <= sh.height)
+            & (llo[:, 0] >= x0) & (lhi[:, 0] <= x1) & (llo[:, 1] >= y0) & (lhi[:, 1] <= y1)
+        )
+    return out
+
+
+def judge_dynamic(
+    vertices: ArrayF64,
+    volumes: ArrayF64,
+    at_robot: np.ndarray,
+    ctx: DynamicContext,
+    make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
+) -> DynamicResult:
+    """Apply the dynamic rules to pieces with vertices (N, 8, 3) [m], volumes (N,) [m^3]
+    and ``at_robot`` (N,) (the piece ends at the robot's shadow start)."""
+    n = vertices.shape[0]
+    if n == 0:
+        z = np.zeros((0, 3))
+        return DynamicResult(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros((0, 8, 3)), (), z, z)
+    p = ctx.params
+    eps = p.support_eps
+    lo = vertices.min(axis=1)
+    hi = vertices.max(axis=1)
+    labels = group_boxes(lo, hi)
+    K = int(labels.max()) + 1
+    clo = np.full((K, 3), np.inf)
+    chi = np.full((K, 3), -np.inf)
+    np.minimum.at(clo, labels, lo)
+    np.maximum.at(chi, labels, hi)
+    cvol = np.bincount(labels, weights=volumes, minlength=K)
+
+    zmin, zmax = np.asarray(ctx.zone.min, dtype=np.float64), np.asarray(ctx.zone.max, dtype=np.float64)
+    boundary = np.any(clo[:, :2] <= zmin[:2] + eps, axis=1) | np.any(chi[:, :2] >= zmax[:2] - eps, axis=1)
+    boundary |= chi[:, 2] >= zmax[2] - eps
+    touch_static = np.zeros(K, dtype=bool)
+    np.logical_or.at(touch_static, labels, ctx.static_touch.any_in(lo, hi))
+    touch_m = np.zeros(K, dtype=bool)
+    near_robot = at_robot.copy()
+    if len(ctx.robot_spheres):
+        s = ctx.robot_spheres
+        c = 0.5 * (lo + hi)
+        r = 0.5 * np.linalg.norm(hi - lo, axis=1)
+        gap = np.linalg.norm(c[:, None, :] - s[None, :, :3], axis=2) - s[None, :, 3] - r[:, None]
+        near_robot |= (gap <= eps).any(axis=1)
+    np.logical_or.at(touch_m, labels, near_robot)
+    entry = np.zeros(K, dtype=bool)
+    if len(ctx.entry_lo):
+        entry = (_box_gap(clo, chi, ctx.entry_lo, ctx.entry_hi) <= eps).any(axis=1)
+
+    spared_shape = touch_static | (boundary & p.keep_at_boundary)
+    # The shell rule, part-wise: a piece inside a shell (around the robot or an obstacle, or
+    # a noise sheet) goes unless a piece of its component outside every shell lies within
+    # ``floor_shell_margin`` of it (a person reaching into the shell, standing on the floor).
+    shell_cut = np.zeros(n, dtype=bool)
+    if p.too_thin:
+        inside = _in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1)
+        inside |= _in_sheets(vertices, ctx)
+        shell_cut = inside & ~(boundary[labels] & p.keep_at_boundary)
+        if shell_cut.any() and (~inside).any():
+            # Within the margin of any piece outside the shells (a superset of "of its own
+            # component": keeps more).
+            m = p.floor_shell_margin
+            grid = TouchGrid.of_boxes(lo[~inside] - m, hi[~inside] + m, zmin - 0.5, zmax + 0.5, pitch=0.05)
+            shell_cut[shell_cut] = ~grid.any_in(lo[shell_cut], hi[shell_cut])
+    fires: dict[str, np.ndarray] = {}
+    if p.too_small:
+        rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
+        fires["too_small"] = (rest < p.min_volume) & ~spared_shape
+    if p.flying:
+        supported = touch_m.copy()
+        for sh in ctx.sheets:
+            idx = _near_sheet(lo, hi, sh, eps)
+            idx = idx[~shell_cut[idx]]
+            if len(idx) == 0:
+                continue
+            (x0, y0), (x1, y1) = sh.local_box()
+            llo, lhi = _local_bounds(vertices[idx], sh)
+            ok = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= -eps)
+            ok &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
+            supported[labels[idx[ok]]] = True
+        fires["flying"] = ~supported & ~spared_shape
+    history = ctx.previous_lo is not None and ctx.dt is not None
+    if history and (p.entry or p.teleport):
+        reach = p.human_speed_max * float(ctx.dt)  # type: ignore[arg-type]
+        if len(ctx.previous_lo):  # type: ignore[arg-type]
+            gap = _box_gap(clo, chi, ctx.previous_lo, ctx.previous_hi).min(axis=1)  # type: ignore[arg-type]
+        else:
+            gap = np.full(K, np.inf)
+        near_static = ctx.static_touch.any_in(clo - reach, chi + reach)
+        open_ = boundary | entry | touch_m | touch_static
+        if p.entry:
+            fires["entry"] = ~open_ & ~(gap <= reach + eps) & ~near_static
+        if p.teleport:
+            fires["teleport"] = ~open_ & (gap > reach) & ~near_static
+
+    rule_of = np.full(K, "", dtype=object)
+    for name in RULE_ORDER:
+        if name in fires:
+            hit = fires[name] & (rule_of == "")
+            rule_of[hit] = name
+    removed_c = rule_of != ""
+    keep = ~removed_c[labels] & ~shell_cut
+
+    removed = []
+    for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
+        idx = np.nonzero(shell_cut & (labels == k))[0]
+        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
+        removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, _LazyMesh(make_mesh, idx)))
+    for k in np.nonzero(removed_c)[0]:
+        idx = np.nonzero(labels == k)[0]
+        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
+        removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, _LazyMesh(make_mesh, idx)))
+
+    kept_k = np.unique(labels[keep])
+    sheet_boxes = _sheets_under(vertices[keep], labels[keep], kept_k, ctx)
+    return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k])
+
+
+def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx: DynamicContext) -> ArrayF64:
+    """Boxes of the sheets under the kept pieces (see the module docstring): for every kept
+    piece that comes within a sheet's thickness of its face, the sheet over the piece's
+    footprint on the face, grown by ``floor_shell_margin`` and clipped to the face."""
+    if vertices.shape[0] == 0 or not ctx.sheets:
+        return np.zeros((0, 8, 3))
+    margin = ctx.params.floor_shell_margin
+    eps = ctx.params.support_eps
+    plo, phi = vertices.min(axis=1), vertices.max(axis=1)
+    out = []
+    for sh in ctx.sheets:
+        idx = _near_sheet(plo, phi, sh, eps)
+        if len(idx) == 0:
+            continue
+        (x0, y0), (x1, y1) = sh.local_box()
+        llo, lhi = _local_bounds(vertices[idx], sh)
+        near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= -eps)
+        near &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
+        if not near.any():
+            continue
+        a = np.maximum(llo[near, :2] - margin, (x0, y0))
+        b = np.minimum(lhi[near, :2] + margin, (x1, y1))
+        ok = np.all(b > a, axis=1)
+        a, b = a[ok], b[ok]
+        if len(a) == 0:
+            continue
+        # The union of the footprints on a grid of SHEET_PITCH cells (a superset), as one
+        # box per run of cells along x.
+        origin = np.array([x0, y0])
+        ia = np.floor((a - origin) / SHEET_PITCH).astype(np.int64)
+        ib = np.ceil((b - origin) / SHEET_PITCH).astype(np.int64)
+        shape = ib.max(axis=0) + 1
+        occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
+        np.add.at(occ, (ia[:, 0], ia[:, 1]), 1)
+        np.add.at(occ, (ib[:, 0], ia[:, 1]), -1)
+        np.add.at(occ, (ia[:, 0], ib[:, 1]), -1)
+        np.add.at(occ, (ib[:, 0], ib[:, 1]), 1)
+        cells = occ.cumsum(0).cumsum(1)[:-1, :-1] > 0  # (nx, ny)
+        lo_list, hi_list = [], []
+        for j in range(cells.shape[1]):
+            col = np.concatenate([[False], cells[:, j], [False]])
+            starts = np.nonzero(col[1:] & ~col[:-1])[0]
+            stops = np.nonzero(~col[1:] & col[:-1])[0]
+            for s0, s1 in zip(starts, stops, strict=True):
+                lo_list.append((s0, j))
+                hi_list.append((s1, j + 1))
+        lo2 = np.minimum(origin + np.array(lo_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
+        hi2 = np.minimum(origin + np.array(hi_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
+        boxes = box_vertices(
+            np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, np.full(len(hi2), sh.height)])
+        )
+        W = _to_world(sh.to_local())
+        out.append(boxes @ W[:, :3].T + W[:, 3])
+    return np.concatenate(out) if out else np.zeros((0, 8, 3))
+
+
+class _LazyMesh:
+    """A removed component's mesh, built when first read."""
+
+    def __init__(self, make, idx: np.ndarray) -> None:  # noqa: ANN001
+        self._make = make
+        self._idx = idx
+        self._mesh = None
+
+    def get(self):  # noqa: ANN201
+        if self._mesh is None:
+            self._mesh = self._make(self._idx)
+        return self._mesh

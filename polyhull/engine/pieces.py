@@ -1,0 +1,457 @@
+"""Dynamic pieces: the occluded segments of unexplained pixels, carved by the other cameras.
+
+A piece is a convex frustum hexahedron in one camera's image space: a rectangle of whole
+pixels ``[u0 - 1/2, u1 + 1/2] x [v0 - 1/2, v1 + 1/2]`` between two z-depths ``z0 < z1``.
+Its faces are planar in the world (four through the camera centre, two at constant z), so a
+union of pieces is an exact polyhedral set.
+
+Pieces start as the tiles of :func:`polyhull.engine.pixels.tile_segments`. Each piece is
+tested against every other camera ``i`` with a frame:
+
+- **covered** by i when its eight vertices are in front of i's near plane, project inside
+  i's image, and lie nearer than the *minimum* free depth of i over the pixel box they
+  project to: then every point of the (convex) piece is free for i;
+- **maybe freed** by i when some vertex is nearer than the *maximum* free depth there.
+
+A piece covered by at least k cameras (the k-of-n rule) is dropped: it is free. A piece
+maybe-freed by fewer than k cameras is kept whole: none of its points is free. Otherwise
+it is split in two along its longest side (a whole-pixel cut of its rectangle, or its
+depth range at the middle), each half shrunk to the pixels and depths whose segments it
+still meets, until its size is below ``clip(alpha * d, size_min, size_max)`` where ``d`` is
+a lower bound of its distance to the robot: fine near the robot, coarse far from it. A
+piece that reaches that size undecided is kept: keeping only grows the region.
+
+The pyramids give the minimum and maximum over a superset of the pixel box (aligned cells
+of a level with at most eight cells a side), which makes "covered" rarer and "maybe"
+commoner: both only keep more. Pieces entirely outside the zone's box are dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from ..camera import Camera
+from ..typed import ArrayF64
+from .pixels import FreePyramid
+
+__all__ = ["CameraStack", "PieceSet", "carve", "piece_vertices", "piece_volumes"]
+
+
+@dataclass(frozen=True, eq=False)
+class CameraStack:
+    """The cameras' poses and intrinsics as arrays for the compiled kernels."""
+
+    R_cw: ArrayF64  # (n, 3, 3) world -> camera rotation
+    t_cw: ArrayF64  # (n, 3)
+    R_wc: ArrayF64  # (n, 3, 3) camera -> world rotation
+    t_wc: ArrayF64  # (n, 3)
+    intr: ArrayF64  # (n, 4) fx, fy, cx, cy [px]
+    size: np.ndarray  # (n, 2) int64 width, height [px]
+    near: ArrayF64  # (n,)
+    far: ArrayF64  # (n,)
+
+    @classmethod
+    def of(cls, cameras: Sequence[Camera]) -> CameraStack:
+        """Stack the cameras' parameters."""
+        return cls(
+            R_cw=np.array([c.T_camera_world[:3, :3] for c in cameras], dtype=np.float64).reshape(-1, 3, 3),
+            t_cw=np.array([c.T_camera_world[:3, 3] for c in cameras], dtype=np.float64).reshape(-1, 3),
+            R_wc=np.array([c.T_world_camera[:3, :3] for c in cameras], dtype=np.float64).reshape(-1, 3, 3),
+            t_wc=np.array([c.T_world_camera[:3, 3] for c in cameras], dtype=np.float64).reshape(-1, 3),
+            intr=np.array(
+                [[c.intrinsics.fx, c.intrinsics.fy, c.intrinsics.cx, c.intrinsics.cy] for c in cameras],
+                dtype=np.float64,
+            ).reshape(-1, 4),
+            size=np.array([[c.intrinsics.width, c.intrinsics.height] for c in cameras], dtype=np.int64).reshape(-1, 2),
+            near=np.array([c.near for c in cameras], dtype=np.float64),
+            far=np.array([c.far for c in cameras], dtype=np.float64),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PieceSet:
+    """A union of convex frustum hexahedra (see the module docstring).
+
+    Attributes:
+        boxes: (N, 7) camera index, u0, u1, v0, v1 (inclusive pixel indices), z0, z1 [m].
+        vertices: (N, 8, 3) world-frame vertices [m]: the near face (z0) counter-clockwise
+            from (u0, v0) as seen from the camera, then the far face (z1) likewise.
+    """
+
+    boxes: ArrayF64
+    vertices: ArrayF64
+
+    @classmethod
+    def empty(cls) -> PieceSet:
+        """No pieces."""
+        return cls(np.zeros((0, 7)), np.zeros((0, 8, 3)))
+
+    def __len__(self) -> int:
+        return int(self.boxes.shape[0])
+
+    def select(self, mask: np.ndarray) -> PieceSet:
+        """The pieces where ``mask`` (N,) is true (or at the given indices)."""
+        return PieceSet(self.boxes[mask], self.vertices[mask])
+
+    @staticmethod
+    def concat(sets: Sequence[PieceSet]) -> PieceSet:
+        """All pieces of ``sets``."""
+        sets = [s for s in sets if len(s)]
+        if not sets:
+            return PieceSet.empty()
+        return PieceSet(np.concatenate([s.boxes for s in sets]), np.concatenate([s.vertices for s in sets]))
+
+
+def piece_vertices(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
+    """(N, 8, 3) world vertices of pieces ``boxes`` (N, 7)."""
+    n = boxes.shape[0]
+    if n == 0:
+        return np.zeros((0, 8, 3))
+    c = boxes[:, 0].astype(np.int64)
+    fx, fy, cx, cy = (stack.intr[c, j] for j in range(4))
+    ua, ub = boxes[:, 1] - 0.5, boxes[:, 2] + 0.5
+    va, vb = boxes[:, 3] - 0.5, boxes[:, 4] + 0.5
+    us = np.stack([ua, ub, ub, ua], axis=1)  # (N, 4)
+    vs = np.stack([va, va, vb, vb], axis=1)
+    out = np.empty((n, 8, 3))
+    for half, z in enumerate((boxes[:, 5], boxes[:, 6])):
+        x = (us - cx[:, None]) / fx[:, None] * z[:, None]
+        y = (vs - cy[:, None]) / fy[:, None] * z[:, None]
+        pc = np.stack([x, y, np.broadcast_to(z[:, None], x.shape)], axis=2)  # (N, 4, 3)
+        out[:, 4 * half : 4 * half + 4] = np.einsum("nij,nkj->nki", stack.R_wc[c], pc) + stack.t_wc[c][:, None, :]
+    return out
+
+
+def piece_volumes(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
+    """(N,) volumes [m^3] of pieces: ``du dv / (fx fy) * (z1^3 - z0^3) / 3``."""
+    if boxes.shape[0] == 0:
+        return np.zeros(0)
+    c = boxes[:, 0].astype(np.int64)
+    du = boxes[:, 2] - boxes[:, 1] + 1.0
+    dv = boxes[:, 4] - boxes[:, 3] + 1.0
+    return du * dv / (stack.intr[c, 0] * stack.intr[c, 1]) * (boxes[:, 6] ** 3 - boxes[:, 5] ** 3) / 3.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _range(mins, maxs, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pragma: no cover - compiled
+    """(min, max) of a pyramid over a superset of pixel box [pu0, pu1] x [pv0, pv1]."""
+    lev = 0
+    while lev < nlev - 1 and (((pu1 >> lev) - (pu0 >> lev)) >= 8 or ((pv1 >> lev) - (pv0 >> lev)) >= 8):
+        lev += 1
+    off = offsets[lev]
+    w = shapes[lev, 1]
+    lo = np.float32(np.inf)
+    hi = np.float32(-np.inf)
+    for r in range(pv0 >> lev, (pv1 >> lev) + 1):
+        base = off + r * w
+        for c in range(pu0 >> lev, (pu1 >> lev) + 1):
+            lo = min(lo, mins[base + c])
+            hi = max(hi, maxs[base + c])
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _vertices(c, u0, u1, v0, v1, z0, z1, R_wc, t_wc, intr, out):  # pragma: no cover - compiled
+    fx, fy, cx, cy = intr[c, 0], intr[c, 1], intr[c, 2], intr[c, 3]
+    ua, ub, va, vb = u0 - 0.5, u1 + 0.5, v0 - 0.5, v1 + 0.5
+    k = 0
+    for h in range(2):
+        z = z0 if h == 0 else z1
+        for j in range(4):
+            u = ua if (j == 0 or j == 3) else ub
+            v = va if j < 2 else vb
+            x = (u - cx) / fx * z
+            y = (v - cy) / fy * z
+            for a in range(3):
+                out[k, a] = R_wc[c, a, 0] * x + R_wc[c, a, 1] * y + R_wc[c, a, 2] * z + t_wc[c, a]
+            k += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def _refine(free, end, img_off, W, u0, u1, v0, v1, z0, z1):  # pragma: no cover - compiled
+    """Shrink a piece to the pixels and depths of the segments it meets; n = 0 if none."""
+    nu0, nu1, nv0, nv1 = u1 + 1, u0 - 1, v1 + 1, v0 - 1
+    nz0 = np.inf
+    nz1 = -np.inf
+    for v in range(v0, v1 + 1):
+        base = img_off + v * W
+        for u in range(u0, u1 + 1):
+            f = np.float64(free[base + u])
+            e = np.float64(end[base + u])
+            a = max(f, z0)
+            b = min(e, z1)
+            if a < b:
+                nu0 = min(nu0, u)
+                nu1 = max(nu1, u)
+                nv0 = min(nv0, v)
+                nv1 = max(nv1, v)
+                nz0 = min(nz0, a)
+                nz1 = max(nz1, b)
+    if nu1 < nu0:
+        return 0, 0, 0, 0, 0, 0.0, 0.0
+    return 1, nu0, nu1, nv0, nv1, nz0, nz1
+
+
+@nb.njit(cache=True, nogil=True)
+def _carve(
+    init, R_cw, t_cw, R_wc, t_wc, intr, size, near, active,
+    mins, maxs, pyr_off, pyr_shape, nlev, free, end, img_off,
+    spheres, zlo, zhi, k_of_n, alpha, size_min, size_max, max_pieces,
+):  # pragma: no cover - compiled
+    n_cam = R_cw.shape[0]
+    cap = max(64, 4 * init.shape[0])
+    stack = np.empty((cap, 7), dtype=np.float64)
+    ns = 0
+    for i in range(init.shape[0]):
+        stack[ns] = init[i]
+        ns += 1
+    out_cap = max(64, init.shape[0])
+    out = np.empty((out_cap, 7), dtype=np.float64)
+    no = 0
+    verts = np.empty((8, 3), dtype=np.float64)
+    overflow = False
+    while ns > 0:
+        ns -= 1
+        c = int(stack[ns, 0])
+        u0 = int(stack[ns, 1])
+        u1 = int(stack[ns, 2])
+        v0 = int(stack[ns, 3])
+        v1 = int(stack[ns, 4])
+        z0 = stack[ns, 5]
+        z1 = stack[ns, 6]
+        _vertices(c, u0, u1, v0, v1, z0, z1, R_wc, t_wc, intr, verts)
+        # Entirely outside the zone's box: not part of the region.
+        outside = False
+        for a in range(3):
+            all_lo = True
+            all_hi = True
+            for j in range(8):
+                if verts[j, a] >= zlo[a]:
+                    all_lo = False
+                if verts[j, a] <= zhi[a]:
+                    all_hi = False
+            if all_lo or all_hi:
+                outside = True
+        if outside:
+            continue
+        n_cover = 0
+        n_maybe = 0
+        for i in range(n_cam):
+            if i == c or not active[i]:
+                continue
+            zmin = np.inf
+            zmax = -np.inf
+            umin = np.inf
+            umax = -np.inf
+            vmin = np.inf
+            vmax = -np.inf
+            for j in range(8):
+                px = R_cw[i, 0, 0] * verts[j, 0] + R_cw[i, 0, 1] * verts[j, 1] + R_cw[i, 0, 2] * verts[j, 2] + t_cw[i, 0]
+                py = R_cw[i, 1, 0] * verts[j, 0] + R_cw[i, 1, 1] * verts[j, 1] + R_cw[i, 1, 2] * verts[j, 2] + t_cw[i, 1]
+                pz = R_cw[i, 2, 0] * verts[j, 0] + R_cw[i, 2, 1] * verts[j, 1] + R_cw[i, 2, 2] * verts[j, 2] + t_cw[i, 2]
+                zmin = min(zmin, pz)
+                zmax = max(zmax, pz)
+                if pz > 1e-9:
+                    uu = intr[i, 0] * px / pz + intr[i, 2]
+                    vv = intr[i, 1] * py / pz + intr[i, 3]
+                    umin = min(umin, uu)
+                    umax = max(umax, uu)
+                    vmin = min(vmin, vv)
+                    vmax = max(vmax, vv)
+            if zmax <= near[i]:
+                continue  # before i's near plane: nothing free
+            if zmin <= 1e-9:
+                n_maybe += 1  # crosses i's camera plane: undecided
+                continue
+            W = size[i, 0]
+            H = size[i, 1]
+            pu0 = int(np.floor(umin + 0.5 - 1e-6))
+            pu1 = int(np.floor(umax + 0.5 + 1e-6))
+            pv0 = int(np.floor(vmin + 0.5 - 1e-6))
+            pv1 = int(np.floor(vmax + 0.5 + 1e-6))
+            if pu1 < 0 or pv1 < 0 or pu0 > W - 1 or pv0 > H - 1:
+                continue  # outside i's image: not seen
+            inside = pu0 >= 0 and pv0 >= 0 and pu1 <= W - 1 and pv1 <= H - 1
+            lo, hi = _range(
+                mins, maxs, pyr_off[i], pyr_shape[i], nlev[i],
+                max(pu0, 0), min(pu1, W - 1), max(pv0, 0), min(pv1, H - 1),
+            )
+            if inside and zmin > near[i] and zmax < lo:
+                n_cover += 1
+            elif zmin < hi:
+                n_maybe += 1
+        if n_cover >= k_of_n:
+            continue
+        keep = n_cover + n_maybe < k_of_n
+        if not keep:
+            # size budget from a lower bound of the distance to the robot
+            cxm = 0.0
+            cym = 0.0
+            czm = 0.0
+            for j in range(8):
+                cxm += verts[j, 0] / 8.0
+                cym += verts[j, 1] / 8.0
+                czm += verts[j, 2] / 8.0
+            rad = 0.0
+            for j in range(8):
+                dx = verts[j, 0] - cxm
+                dy = verts[j, 1] - cym
+                dz = verts[j, 2] - czm
+                rad = max(rad, np.sqrt(dx * dx + dy * dy + dz * dz))
+            d = np.inf
+            for s in range(spheres.shape[0]):
+                dx = spheres[s, 0] - cxm
+                dy = spheres[s, 1] - cym
+                dz = spheres[s, 2] - czm
+                d = min(d, np.sqrt(dx * dx + dy * dy + dz * dz) - spheres[s, 3])
+            d = max(d - rad, 0.0)
+            allowed = min(max(alpha * d, size_min), size_max)
+            ext_z = z1 - z0
+            ext_u = (u1 - u0 + 1) * z1 / intr[c, 0]
+            ext_v = (v1 - v0 + 1) * z1 / intr[c, 1]
+            ext = max(ext_z, max(ext_u, ext_v))
+            if ext <= allowed or no + ns >= max_pieces:
+                if no + ns >= max_pieces:
+                    overflow = True
+                keep = True
+            else:
+                # split along the longest side
+                halves = np.empty((2, 7), dtype=np.float64)
+                if ext_u >= ext_z and ext_u >= ext_v and u1 > u0:
+                    m = (u0 + u1) // 2
+                    halves[0, 1], halves[0, 2], halves[0, 3], halves[0, 4] = u0, m, v0, v1
+                    halves[1, 1], halves[1, 2], halves[1, 3], halves[1, 4] = m + 1, u1, v0, v1
+                    halves[0, 5], halves[0, 6], halves[1, 5], halves[1, 6] = z0, z1, z0, z1
+                elif ext_v >= ext_z and v1 > v0:
+                    m = (v0 + v1) // 2
+                    halves[0, 1], halves[0, 2], halves[0, 3], halves[0, 4] = u0, u1, v0, m
+                    halves[1, 1], halves[1, 2], halves[1, 3], halves[1, 4] = u0, u1, m + 1, v1
+                    halves[0, 5], halves[0, 6], halves[1, 5], halves[1, 6] = z0, z1, z0, z1
+                else:
+                    zm = 0.5 * (z0 + z1)
+                    halves[0, 1], halves[0, 2], halves[0, 3], halves[0, 4] = u0, u1, v0, v1
+                    halves[1, 1], halves[1, 2], halves[1, 3], halves[1, 4] = u0, u1, v0, v1
+                    halves[0, 5], halves[0, 6], halves[1, 5], halves[1, 6] = z0, zm, zm, z1
+                for h in range(2):
+                    ok, a0, a1, b0, b1, c0, c1 = _refine(
+                        free, end, img_off[c], size[c, 0],
+                        int(halves[h, 1]), int(halves[h, 2]), int(halves[h, 3]), int(halves[h, 4]),
+                        halves[h, 5], halves[h, 6],
+                    )
+                    if ok == 0:
+                        continue
+                    if ns == cap:
+                        cap *= 2
+                        grown = np.empty((cap, 7), dtype=np.float64)
+                        grown[:ns] = stack[:ns]
+                        stack = grown
+                    stack[ns, 0] = c
+                    stack[ns, 1] = a0
+                    stack[ns, 2] = a1
+                    stack[ns, 3] = b0
+                    stack[ns, 4] = b1
+                    stack[ns, 5] = c0
+                    stack[ns, 6] = c1
+                    ns += 1
+        if keep:
+            if no == out_cap:
+                out_cap *= 2
+                grown = np.empty((out_cap, 7), dtype=np.float64)
+                grown[:no] = out[:no]
+                out = grown
+            out[no, 0] = c
+            out[no, 1] = u0
+            out[no, 2] = u1
+            out[no, 3] = v0
+            out[no, 4] = v1
+            out[no, 5] = z0
+            out[no, 6] = z1
+            no += 1
+    return out[:no], overflow
+
+
+@dataclass(frozen=True)
+class CarveParams:
+    """How finely undecided pieces are split.
+
+    Attributes:
+        alpha: A piece at distance d [m] from the robot is split down to ``alpha * d``.
+        size_min: Smallest piece size [m] (near the robot).
+        size_max: Largest piece size [m] (far from the robot).
+        max_pieces: Bound on the pieces of one cycle; past it, undecided pieces are kept
+            whole (conservative) and the cycle reports it.
+    """
+
+    alpha: float = 0.25
+    size_min: float = 0.05
+    size_max: float = 0.5
+    max_pieces: int = 200_000
+
+
+def carve(
+    initial: ArrayF64,
+    stack: CameraStack,
+    active: np.ndarray,
+    pyramids: Sequence[FreePyramid | None],
+    free_images: Sequence[np.ndarray | None],
+    end_images: Sequence[np.ndarray | None],
+    robot_spheres: ArrayF64,
+    zone_lo: ArrayF64,
+    zone_hi: ArrayF64,
+    k_of_n: int,
+    params: CarveParams,
+) -> tuple[PieceSet, bool]:
+    """Carve the initial pieces (N, 7) by every other active camera's free depth.
+
+    Returns:
+        (the kept pieces, True if the piece budget was reached).
+    """
+    if initial.shape[0] == 0:
+        return PieceSet.empty(), False
+    n = len(pyramids)
+    H_max = 0
+    levels = [0 if p is None else len(p.offsets) for p in pyramids]
+    L = max(max(levels), 1)
+    pyr_off = np.zeros((n, L), dtype=np.int64)
+    pyr_shape = np.ones((n, L, 2), dtype=np.int64)
+    mins_parts, maxs_parts, free_parts, end_parts = [], [], [], []
+    img_off = np.zeros(n, dtype=np.int64)
+    base = 0
+    ibase = 0
+    for i, p in enumerate(pyramids):
+        W, H = int(stack.size[i, 0]), int(stack.size[i, 1])
+        H_max = max(H_max, H)
+        img_off[i] = ibase
+        f = free_images[i]
+        e = end_images[i]
+        if f is None or e is None:
+            f = np.zeros((H, W), dtype=np.float32)
+            e = np.zeros((H, W), dtype=np.float32)
+        free_parts.append(np.ascontiguousarray(f, dtype=np.float32).ravel())
+        end_parts.append(np.ascontiguousarray(e, dtype=np.float32).ravel())
+        ibase += H * W
+        if p is None:
+            continue
+        pyr_off[i, : len(p.offsets)] = p.offsets + base
+        pyr_shape[i, : len(p.offsets)] = p.shapes
+        mins_parts.append(p.mins)
+        maxs_parts.append(p.maxs)
+        base += len(p.mins)
+    mins = np.concatenate(mins_parts) if mins_parts else np.zeros(1, dtype=np.float32)
+    maxs = np.concatenate(maxs_parts) if maxs_parts else np.zeros(1, dtype=np.float32)
+    boxes, overflow = _carve(
+        np.ascontiguousarray(initial, dtype=np.float64),
+        stack.R_cw, stack.t_cw, stack.R_wc, stack.t_wc, stack.intr, stack.size, stack.near,
+        np.asarray(active, dtype=np.bool_),
+        mins, maxs, pyr_off, pyr_shape, np.asarray(levels, dtype=np.int64),
+        np.concatenate(free_parts), np.concatenate(end_parts), img_off,
+        np.ascontiguousarray(robot_spheres, dtype=np.float64).reshape(-1, 4),
+        np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),
+        int(k_of_n), float(params.alpha), float(params.size_min), float(params.size_max),
+        int(params.max_pieces),
+    )
+    return PieceSet(boxes, piece_vertices(boxes, stack)), bool(overflow)
