@@ -38,14 +38,14 @@ from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, winding_numbers
 from .engine.dynamic_rules import DynamicContext, DynamicResult, judge_dynamic
 from .engine.pieces import CameraStack, CarveParams, PieceSet, carve, piece_volumes
-from .engine.pixels import classify_frame, free_pyramid, memory_segments, tile_segments
+from .engine.pixels import FreePyramid, classify_frame, free_pyramid, memory_segments, tile_segments
 from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel, TouchGrid
 from .errors import PolyhullError
 from .frames import DepthFrame
 from .occlusion import robot_occlusion
 from .plausibility import _ICOSPHERE, RemovedComponent
-from .regions import check_manifold
+from .regions import check_manifold, free_region_from_depth
 from .robot import Robot
 from .speed import decide_speed
 from .typed import ArrayF64
@@ -71,7 +71,8 @@ class _CycleGeometry:
     static: StaticModel
     zone: m3.Manifold
     pieces: ArrayF64  # (N, 8, 3) all dynamic pieces before the rules (with memory)
-    kept: ArrayF64  # (K, 8, 3) kept dynamic pieces and sheet boxes
+    kept: ArrayF64  # (K, 8, 3) kept dynamic pieces, then the sheet boxes
+    n_kept: int  # how many of ``kept`` are pieces (the rest are sheet boxes)
     robot_body: Callable[[], m3.Manifold]
     occlusion: Callable[[], m3.Manifold]
     full_pieces: Callable[[], ArrayF64]
@@ -85,7 +86,11 @@ class _CycleGeometry:
     def _build(self, name: str) -> m3.Manifold:
         s = self.static
         if name == "region_dynamic":
-            return _hexahedra_manifold(self.kept) ^ self.zone
+            # The sheet boxes are supersets of the static sheet they stand for: as a
+            # manifold, only their part in R2_static (the removed sheet) is shown.
+            pieces = _hexahedra_manifold(self.kept[: self.n_kept]) ^ self.zone
+            sheets = _hexahedra_manifold(self.kept[self.n_kept :]) ^ s.region_r2
+            return check_manifold(pieces + sheets, "dynamic region")
         if name == "region":
             return check_manifold(s.region + self.get("region_dynamic"), "region R3")
         if name == "region_r2":
@@ -312,6 +317,52 @@ class Monitor:
         self.last_images: CycleImages | None = None
 
     @property
+    def statics(self) -> tuple:  # type: ignore[type-arg]
+        """Every camera's static data (:class:`polyhull.engine.static_model.StaticCamera`)."""
+        return self.static.cameras
+
+    def in_robot_shadow(self, points: ArrayF64) -> np.ndarray:
+        """(P,) whether points lie in the padded robot's declared shadow of the last cycle:
+        for some camera, on a robot-covered pixel at or beyond its shadow start. This is
+        the tolerance the engine removes as the robot occlusion (the padding and the depth
+        tolerance band before it)."""
+        out = np.zeros(len(points), dtype=bool)
+        if self.last_images is None:
+            return out
+        for cam in self.cell.cameras:
+            r = self.last_images.raster.get(cam.name)
+            if r is None:
+                continue
+            uv, z = cam.project(points)
+            H, W = cam.shape
+            with np.errstate(invalid="ignore"):
+                ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
+            ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(np.int64), 0, W - 1)
+            vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(np.int64), 0, H - 1)
+            out |= ok & r.covered[vi, ui] & (z >= r.shadow_start[vi, ui])
+        return out
+
+    def camera_regions(self, frames: Mapping[str, DepthFrame]) -> dict[str, m3.Manifold]:
+        """C(i) = Z minus F(i) for every camera with a frame of the right shape, built from the
+        engine's free depth of ``frames`` (inspection, not the hot path; a camera without a
+        usable frame frees nothing, so its C(i) is Z)."""
+        out = {}
+        for cam, s in zip(self.cell.cameras, self.static.cameras, strict=True):
+            frame = frames.get(cam.name)
+            if not isinstance(frame, DepthFrame) or frame.shape != cam.shape:
+                out[cam.name] = self._zone
+                continue
+            cls = classify_frame(
+                frame.depth, s.reference, s.lower, s.upper, s.free_static,
+                np.full(cam.shape, np.inf, dtype=np.float32),
+                near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
+                is_color=cam.kind == "color",
+            )
+            free = free_region_from_depth(cam, cls.free.astype(np.float64), self.cell.reconstruction.block)
+            out[cam.name] = check_manifold(self._zone - free, f"camera '{cam.name}' region C(i)")
+        return out
+
+    @property
     def hull_static(self) -> m3.Manifold:
         """The depth hull of the empty cell (all frames equal to the references)."""
         return self.static.hull
@@ -520,7 +571,7 @@ class Monitor:
         t0 = time.perf_counter()
         free_imgs: list[np.ndarray | None] = []
         end_imgs: list[np.ndarray | None] = []
-        pyramids = []
+        pyramids: list[FreePyramid | None] = []
         active = np.zeros(len(cell.cameras), dtype=bool)
         init_parts = []
         unexplained = 0
@@ -669,6 +720,7 @@ class Monitor:
             zone=self._zone,
             pieces=allp.vertices,
             kept=kept,
+            n_kept=int(result.keep.sum()),
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
             full_pieces=lambda: self._full_pieces(usable, free_imgs, run_carve),
@@ -767,7 +819,7 @@ class Monitor:
         pieces, _ = run_carve(np.concatenate(parts), mem_free, ends)
         if not len(pieces):
             return pieces
-        grid = TouchGrid.of_boxes(lo, hi, np.asarray(self.cell.zone.min) - 1.0, np.asarray(self.cell.zone.max) + 1.0, 0.05)
+        grid = TouchGrid.of_boxes(lo, hi, lo.min(axis=0), hi.max(axis=0), 0.05)
         return pieces.select(grid.any_in(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1)))
 
     def _full_pieces(

@@ -310,9 +310,9 @@ def judge_dynamic(
         gap = np.linalg.norm(c[:, None, :] - s[None, :, :3], axis=2) - s[None, :, 3] - r[:, None]
         near_robot |= (gap <= eps).any(axis=1)
     np.logical_or.at(touch_m, labels, near_robot)
-    entry = np.zeros(K, dtype=bool)
+    entry: np.ndarray = np.zeros(K, dtype=bool)
     if len(ctx.entry_lo):
-        entry = (_box_gap(clo, chi, ctx.entry_lo, ctx.entry_hi) <= eps).any(axis=1)
+        entry = np.asarray((_box_gap(clo, chi, ctx.entry_lo, ctx.entry_hi) <= eps).any(axis=1))
 
     spared_shape = touch_static | (boundary & p.keep_at_boundary)
     # The shell rule, part-wise: a piece inside a shell (around the robot or an obstacle, or
@@ -327,12 +327,14 @@ def judge_dynamic(
             # Within the margin of any piece outside the shells (a superset of "of its own
             # component": keeps more).
             m = p.floor_shell_margin
-            grid = TouchGrid.of_boxes(lo[~inside] - m, hi[~inside] + m, zmin - 0.5, zmax + 0.5, pitch=0.05)
+            olo, ohi = lo[~inside] - m, hi[~inside] + m
+            grid = TouchGrid.of_boxes(olo, ohi, olo.min(axis=0), ohi.max(axis=0), pitch=0.05)
             shell_cut[shell_cut] = ~grid.any_in(lo[shell_cut], hi[shell_cut])
     fires: dict[str, np.ndarray] = {}
     if p.too_small:
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
-        fires["too_small"] = (rest < p.min_volume) & ~spared_shape
+        small = rest < p.min_volume
+        fires["too_small"] = small & ~spared_shape
     if p.flying:
         supported = touch_m.copy()
         for sh in ctx.sheets:
@@ -346,6 +348,10 @@ def judge_dynamic(
             ok &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
             supported[labels[idx[ok]]] = True
         fires["flying"] = ~supported & ~spared_shape
+    else:
+        supported = np.ones(K, dtype=bool)
+    if not p.too_small:
+        small = np.zeros(K, dtype=bool)
     history = ctx.previous_lo is not None and ctx.dt is not None
     if history and (p.entry or p.teleport):
         reach = p.human_speed_max * float(ctx.dt)  # type: ignore[arg-type]
@@ -379,7 +385,11 @@ def judge_dynamic(
         removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, _LazyMesh(make_mesh, idx)))
 
     kept_k = np.unique(labels[keep])
-    sheet_boxes = _sheets_under(vertices[keep], labels[keep], kept_k, ctx)
+    # Only components that pass too_small and flying on their own (not only because they
+    # touch R3_static or the boundary) keep the sheet under them: a person does; noise
+    # spared next to a static blind region does not need a floor under it.
+    own = keep & ~(small | ~supported)[labels]
+    sheet_boxes = _sheets_under(vertices[own], labels[own], np.unique(labels[own]), ctx)
     return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k])
 
 

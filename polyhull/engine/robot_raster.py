@@ -193,13 +193,44 @@ def rasterize_robot(
         # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
         pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
         _raster(pix, tris, W, H, float(camera.near), zbuf, zback)
-    covered = np.isfinite(zbuf)
-    band = np.maximum(0.0, 2.0 * camera.tau(np.where(covered, zbuf, 0.0)) - pieces.padding)
-    start = np.where(covered, np.maximum(zbuf - band, camera.near), np.inf)
-    front = zbuf.astype(np.float32)
-    front = np.where(front > zbuf, np.nextafter(front, np.float32(-np.inf)), front)
-    s32 = start.astype(np.float32)
-    s32 = np.where(s32 > start, np.nextafter(s32, np.float32(-np.inf)), s32)
-    back = zback.astype(np.float32)
-    back = np.where(back < zback, np.nextafter(back, np.float32(np.inf)), back)
-    return RobotRaster(covered, front.astype(np.float32), back.astype(np.float32), s32.astype(np.float32))
+    covered = np.zeros((H, W), dtype=np.bool_)
+    front = np.empty((H, W), dtype=np.float32)
+    back = np.empty((H, W), dtype=np.float32)
+    start = np.empty((H, W), dtype=np.float32)
+    _finish(
+        zbuf, zback, float(camera.near), float(camera.tolerance_sigmas * camera.noise),
+        float(camera.tolerance_min), float(pieces.padding), covered, front, back, start,
+    )
+    return RobotRaster(covered, front, back, start)
+
+
+@nb.njit(cache=True, nogil=True)
+def _finish(zbuf, zback, near, a, tmin, padding, covered, front, back, start):  # pragma: no cover - compiled
+    """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``."""
+    H, W = zbuf.shape
+    ninf = np.float32(-np.inf)
+    pinf = np.float32(np.inf)
+    for v in range(H):
+        for u in range(W):
+            z = zbuf[v, u]
+            if z == np.inf:
+                covered[v, u] = False
+                front[v, u] = pinf
+                back[v, u] = ninf
+                start[v, u] = pinf
+                continue
+            covered[v, u] = True
+            f = np.float32(z)
+            if f > z:
+                f = np.nextafter(f, ninf)
+            front[v, u] = f
+            b = np.float32(zback[v, u])
+            if b < zback[v, u]:
+                b = np.nextafter(b, pinf)
+            back[v, u] = b
+            tau = max(a * z * z, tmin)
+            s = max(z - max(0.0, 2.0 * tau - padding), near)
+            s32 = np.float32(s)
+            if s32 > s:
+                s32 = np.nextafter(s32, ninf)
+            start[v, u] = s32

@@ -137,6 +137,7 @@ class StaticCamera:
                 B_far, 3, mode="nearest"
             )
             edge = jump > (U - T)
+        T_spec = T
         T = np.where(edge, ndimage.minimum_filter(T, 3, mode="nearest"), T)
         U = np.where(edge, ndimage.maximum_filter(U, 3, mode="nearest"), U)
         with np.errstate(invalid="ignore"):
@@ -146,6 +147,9 @@ class StaticCamera:
                 # min over D in [T, U] of min(D, B) - tau(D): at D = T or D = U.
                 f_s = np.minimum(T - camera.tau(T), B - camera.tau(U))
         no_free = ndimage.maximum_filter(unsure, 3, mode="nearest")
+        if camera.kind == "color":
+            # A widened band admits readings the SPEC calls changed (D < T): free nothing.
+            no_free |= T < T_spec
         f_s = np.where(no_free, camera.near, np.clip(f_s, camera.near, camera.far))
         w = np.where(f_s > camera.near, -1.0 / f_s, -1.0 / camera.near)
         arrays = {
@@ -605,7 +609,7 @@ class StaticModel:
         arrays["hull_volume"] = np.array(self.hull_volume)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp.npz")
-        np.savez_compressed(tmp, **arrays)
+        np.savez_compressed(tmp, **arrays)  # type: ignore[arg-type]
         os.replace(tmp, path)
 
     @classmethod
@@ -717,7 +721,7 @@ class StaticModel:
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-1"
+_CACHE_FORMAT = b"polyhull-static-model-2"
 
 
 def cache_directory() -> Path | None:
