@@ -1,64 +1,129 @@
-"""polyhull bench: a smoke run on the small cell, JSON fields and the tightness figure."""
+"""polyhull bench: a small run of the reference workload, its JSON figures, the text table,
+the synthetic camera ring and the rejection of bad flag values. No timing assertions."""
 
 from __future__ import annotations
 
-import argparse
+import contextlib
+import io
 import json
-from pathlib import Path
+import math
 
 import numpy as np
 import pytest
 
-from polyhull.commands import bench
-from polyhull.errors import PolyhullError
+from polyhull.cellfile import default_cell_path, load_cell
+from polyhull.cli import main
+from polyhull.commands.bench import rescale_camera, ring_cameras
 
-SMALL_CELL = Path(__file__).resolve().parents[1] / "fixtures" / "cells" / "small_cell.toml"
+SMALL = ("--cycles", "2", "--warmup", "1", "--empty-cycles", "2", "--tightness-samples", "20000", "--resolution", "320x240")
 
 
 def _run(*argv: str) -> int:
-    parser = argparse.ArgumentParser(prog="polyhull")
-    bench.register(parser.add_subparsers())
-    args = parser.parse_args(["bench", *argv])
-    return int(args.func(args))
+    return main(["bench", *argv])
 
 
-def test_bench_json_has_the_figures(capsys: pytest.CaptureFixture[str]) -> None:
-    code = _run(
-        "--cell", str(SMALL_CELL), "--cycles", "1", "--warmup", "0", "--tightness-samples", "20000", "--json"
-    )
+@pytest.fixture(scope="module")
+def bench_json() -> dict:  # type: ignore[type-arg]
+    """One small --json run, shared by the checks below (stdout must hold one JSON object)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = _run(*SMALL, "--json")
+    assert code == 0, err.getvalue()
+    return json.loads(out.getvalue())  # the whole of stdout: one object and nothing else
+
+
+def test_bench_json_timings(bench_json: dict) -> None:  # type: ignore[type-arg]
+    cycle = bench_json["cycle_ms"]
+    assert cycle["median"] > 0 and cycle["p99"] >= cycle["median"]
+    stages = bench_json["stages_ms_median"]
+    for stage in ("frames", "kinematics", "robot_raster", "pixels", "pieces", "plausibility", "distance", "speed"):
+        assert stage in stages and stages[stage] >= 0
+        assert bench_json["stages_cycles"][stage] == 2
+    assert "total" not in stages
+    w = bench_json["workload"]
+    assert w["cameras"] == 4 and w["resolution"] == [320, 240] and w["cycles"] == 2 and w["warmup"] == 1
+
+
+def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ignore[type-arg]
+    person = bench_json["person"]
+    assert person["cycles"] == 3  # warm-up and timed cycles of the walk
+    gap = person["true_minus_reported_m"]
+    assert math.isfinite(gap["median"]) and gap["max"] >= gap["median"]
+    assert isinstance(person["cycles_reported_above_true"], int) and person["cycles_reported_above_true"] >= 0
+    assert 0.0 <= person["speed_scale"]["min"] <= person["speed_scale"]["median"] <= 1.0
+    assert isinstance(person["faults"], list)
+    empty = bench_json["empty_cell"]
+    assert empty["cycles"] == 2
+    assert 0 <= empty["kept_pieces"]["min"] <= empty["kept_pieces"]["max"]
+    assert 0 <= empty["cycles_with_kept_pieces"] <= 2 and 0 <= empty["cycles_distance_off_static"] <= 2
+    assert 0.0 <= empty["speed_scale"]["min"] <= 1.0
+    assert empty["distance_m"]["min"] is None or empty["distance_m"]["min"] >= 0
+
+
+def test_bench_json_tightness(bench_json: dict) -> None:  # type: ignore[type-arg]
+    tight = bench_json["tightness"]
+    assert tight["samples"] == 20000
+    assert tight["volume_zone_m3"] == pytest.approx(6.0 * 6.0 * 3.5)
+    assert 0 < tight["volume_exact_hull_m3"] < tight["volume_zone_m3"]
+    assert 0 < tight["volume_engine_r2_m3"] < tight["volume_zone_m3"]
+    assert math.isfinite(tight["excess_percent"])
+    assert tight["volume_exact_hull_outside_robot_shadow_m3"] <= tight["volume_exact_hull_m3"]
+    for key in ("misses", "misses_unexcused"):
+        assert isinstance(tight[key], int) and tight[key] >= 0
+    assert tight["misses"] <= tight["misses_unexcused"]
+
+
+def test_bench_text_output(capsys: pytest.CaptureFixture[str]) -> None:
+    code = _run("--cycles", "1", "--warmup", "0", "--empty-cycles", "0", "--tightness-samples", "0", "--resolution", "160x120")
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "stage" in out and "median [ms]" in out and "cycle p99" in out
+    assert "person:" in out
+    assert "tightness" not in out and "empty cell" not in out  # both skipped
+
+
+def test_camera_ring_and_resolution() -> None:
+    cell = load_cell(default_cell_path())
+    cams = ring_cameras(cell, 5)
+    assert len({c.name for c in cams}) == 5
+    for c in cams:
+        assert c.intrinsics == cell.cameras[0].intrinsics and c.noise == cell.cameras[0].noise
+        assert c.center[2] == pytest.approx(3.3)
+        assert np.hypot(c.center[0] - 3.0, c.center[1] - 3.0) == pytest.approx(2.9)
+        axis = c.T_world_camera[:3, 2]
+        to_target = np.array([3.0, 3.0, 1.0]) - c.center
+        assert axis @ to_target == pytest.approx(np.linalg.norm(to_target))  # looks at the target
+    k = rescale_camera(cell.cameras[0], 320, 240).intrinsics
+    assert (k.width, k.height, k.fx, k.fy, k.cx, k.cy) == (320, 240, 262.5, 262.5, 159.5, 119.5)
+
+
+def test_bench_camera_ring_runs(capsys: pytest.CaptureFixture[str]) -> None:
+    code = _run("--cameras", "3", "--resolution", "160x120", "--cycles", "1", "--warmup", "0",
+                "--empty-cycles", "0", "--tightness-samples", "2000", "--json")
     assert code == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["cycle_ms_median"] > 0 and out["cycle_ms_p99"] >= out["cycle_ms_median"]
-    for stage in ("camera_regions", "fusion", "occlusion", "plausibility", "distance", "speed"):
-        assert stage in out["stages_ms_median"]
-    tight = out["tightness"]
-    # C contains the exact depth hull: its volume is not below the sampled estimate (allowing
-    # three standard errors of the Monte-Carlo share).
-    share = tight["volume_exact_hull"] / (3.0 * 3.0 * 2.5)
-    error = 3.0 * np.sqrt(share * (1 - share) / tight["samples"]) * (3.0 * 3.0 * 2.5)
-    assert tight["volume_hull"] >= tight["volume_exact_hull"] - error
-    # Each per-pixel approximation step only lowers free depth, so on the same samples the
-    # hull only grows: the breakdown is ordered exactly.
-    assert 0.0 <= tight["excess_static_band"] <= tight["excess_static_band_and_blocks"]
-    # The per-frame block minima nest (2 px blocks lie in 4 px blocks lie in 8 px blocks).
-    bounds = [tight[f"excess_frame_blocks_{b}"] for b in (2, 4, 8)]
-    assert 0.0 <= bounds[0] <= bounds[1] <= bounds[2]
-    assert out["workload"]["cameras"] == 2
+    assert out["workload"]["cameras"] == 3 and out["workload"]["camera_layout"] == "ring"
+    assert out["empty_cell"] is None and out["tightness"]["misses"] >= 0
 
 
-def test_bench_block_overrides_the_cell(capsys: pytest.CaptureFixture[str]) -> None:
-    """--block replaces the cell's reconstruction.block, and the workload says so."""
-    code = _run("--cell", str(SMALL_CELL), "--cycles", "1", "--warmup", "0", "--tightness-samples", "0", "--block", "4", "--json")
-    assert code == 0
-    out = json.loads(capsys.readouterr().out)
-    assert out["workload"]["block_px"] == 4
-    assert out["tightness"] is None
-
-
-def test_bench_rejects_bad_counts() -> None:
-    with pytest.raises(PolyhullError, match="--cycles"):
-        _run("--cell", str(SMALL_CELL), "--cycles", "0")
-    with pytest.raises(PolyhullError, match="--tightness-samples"):
-        _run("--cell", str(SMALL_CELL), "--tightness-samples", "-1")
-    with pytest.raises(PolyhullError, match="--block"):
-        _run("--cell", str(SMALL_CELL), "--block", "0")
+@pytest.mark.parametrize(
+    ("argv", "flag"),
+    [
+        (("--cameras", "0"), "--cameras"),
+        (("--cameras", "17"), "--cameras"),
+        (("--resolution", "0x0"), "--resolution"),
+        (("--resolution", "640"), "--resolution"),
+        (("--cycles", "0"), "--cycles"),
+        (("--warmup", "-1"), "--warmup"),
+        (("--empty-cycles", "-1"), "--empty-cycles"),
+        (("--tightness-samples", "-1"), "--tightness-samples"),
+        (("--seed", "-1"), "--seed"),
+    ],
+)
+def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code = _run(*argv)
+    captured = capsys.readouterr()
+    assert code != 0
+    assert captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and flag in lines[0], captured.err
