@@ -96,3 +96,23 @@ def manifold_contains(
         _, nearest = cKDTree(points[idx]).query(centers)
         inside[idx[nearest]] = True
     return inside
+
+
+def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
+    """The exact per-pixel oracle: a point is possibly occupied unless some camera sees it in
+    front of the SPEC's free depth ``min(D, B) - tau(D)`` of the pixel it projects to."""
+    from polyhull.regions import free_depth
+
+    occupied = np.ones(len(points), dtype=bool)
+    for s in monitor.statics:
+        cam = s.camera
+        f = free_depth(cam, np.asarray(frames[cam.name].depth, dtype=np.float64), s.reference)
+        uv, z = cam.project(points)
+        H, W = cam.shape
+        with np.errstate(invalid="ignore"):
+            in_view = (z >= cam.near) & (z <= cam.far) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5)
+            in_view &= (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
+        ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(int), 0, W - 1)
+        vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(int), 0, H - 1)
+        occupied &= ~(in_view & (z <= f[vi, ui]))
+    return occupied

@@ -146,17 +146,24 @@ def test_paper_cell() -> None:
         assert optical_axis[2] < -0.4
         _, z = cam.project(np.array([[3.0, 3.0, 0.6]]))
         assert z[0] > 0
-    assert len(cell.obstacles) == 3
+    # two tables, a rack and the four walls just outside the zone
+    assert [o.name for o in cell.obstacles] == [
+        "table_south", "table_east", "rack", "wall_south", "wall_north", "wall_west", "wall_east"
+    ]
     assert all(o.solid for o in cell.obstacles)
+    for wall in cell.obstacles[3:]:
+        lo, hi = wall.mesh.bounds
+        inside = np.minimum(hi, cell.zone.max) - np.maximum(lo, cell.zone.min)
+        assert np.any(inside <= 1e-9)  # touches the zone at most on a face
     assert cell.robot is not None
     assert cell.robot.urdf == ARM6.resolve()
     assert cell.robot.base == (3.0, 3.0, 0.0)
     assert cell.robot.q == (0.0, -0.6, 1.2, 0.0, 0.8, 0.0)
-    # Tables are at least 1 m from the robot base.
-    for obstacle in cell.obstacles:
+    # Tables are at least 1.5 m from the robot base.
+    for obstacle in cell.obstacles[:3]:
         lo, hi = obstacle.mesh.bounds
         nearest = np.clip([3.0, 3.0], lo[:2], hi[:2])
-        assert np.hypot(*(nearest - [3.0, 3.0])) >= 1.0
+        assert np.hypot(*(nearest - [3.0, 3.0])) >= 1.5
     assert cell.safety == SafetyParams()
     assert cell.reconstruction == ReconstructionParams()
     assert [m.name for m in cell.mounting] == [

@@ -53,7 +53,7 @@ def _min_gap(region: m3.Manifold, robot: Robot, q: np.ndarray) -> tuple[float, s
 def test_distance_matches_min_gap(robot: Robot, model: RobotDistanceModel, center, size, q) -> None:  # noqa: ANN001
     q = np.asarray(q, dtype=np.float64)
     region = _box(center, size)
-    result = model.distance(region, robot.link_transforms(q))
+    result = model.distance(robot.link_transforms(q), region=region)
     gap, link = _min_gap(region, robot, q)
     assert 0.0 < gap < 2.0
     assert result.distance == pytest.approx(gap, abs=1e-3)
@@ -68,16 +68,66 @@ def test_contact_is_zero_and_names_link(robot: Robot, model: RobotDistanceModel)
     T = robot.link_transforms(q)
     # A box around the gripper origin touches the gripper.
     p = T["gripper"][:3, 3]
-    result = model.distance(_box(tuple(p), (0.1, 0.1, 0.1)), T)
+    result = model.distance(T, region=_box(tuple(p), (0.1, 0.1, 0.1)))
     assert result.distance == 0.0
     assert result.link is not None
     assert result.points is None
 
 
 def test_empty_region_is_inf(robot: Robot, model: RobotDistanceModel) -> None:
-    result = model.distance(m3.Manifold(), robot.link_transforms(np.zeros(6)))
+    result = model.distance(robot.link_transforms(np.zeros(6)), region=m3.Manifold())
     assert math.isinf(result.distance)
     assert result.link is None and result.points is None
+
+
+def _hexahedra(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    from polyhull.engine.dynamic_rules import box_vertices
+
+    return box_vertices(lo, hi)
+
+
+@pytest.mark.parametrize("q", [[0.0, -0.6, 1.2, 0.0, 0.8, 0.0], [0.5, -0.3, 0.9, 0.4, -0.6, 0.2]])
+def test_pieces_distance_matches_min_gap(robot: Robot, model: RobotDistanceModel, q) -> None:  # noqa: ANN001
+    """Hexahedra pieces: the same distance as their union measured by manifold3d min_gap."""
+    q = np.asarray(q, dtype=np.float64)
+    lo = np.array([[0.4, 0.4, 0.2], [2.0, 1.2, 1.0], [1.2, 0.3, 0.0]])
+    hi = lo + np.array([[0.3, 0.3, 0.5], [0.2, 0.6, 0.3], [0.4, 0.2, 1.6]])
+    pieces = _hexahedra(lo, hi)
+    union = m3.Manifold.batch_boolean([_box(tuple((a + b) / 2), tuple(b - a)) for a, b in zip(lo, hi, strict=True)], m3.OpType.Add)
+    gap, link = _min_gap(union, robot, q)
+    result = model.distance(robot.link_transforms(q), pieces=pieces)
+    assert result.distance == pytest.approx(gap, abs=1e-3)
+    assert result.link == link
+
+
+def test_link_inside_a_piece_is_contact(robot: Robot, model: RobotDistanceModel) -> None:
+    """FCL measures between surfaces: a link entirely inside a region piece would report a
+    positive distance; the containment test makes it contact."""
+    q = np.asarray([0.0, -0.6, 1.2, 0.0, 0.8, 0.0])
+    T = robot.link_transforms(q)
+    p = model.inner_points(T)["gripper"]
+    big = _hexahedra(np.array([p - 0.6]), np.array([p + 0.6]))
+    # the box encloses the whole gripper: no surface contact, yet the link is inside
+    result = model.distance(T, pieces=big)
+    assert result.distance == 0.0 and result.link is not None
+    far = _hexahedra(np.array([p + 2.0]), np.array([p + 2.5]))
+    assert model.distance(T, pieces=far).distance > 1.0
+
+
+def test_link_inside_the_static_region_is_contact(robot: Robot, model: RobotDistanceModel) -> None:
+    """The same for the static region, through its point-containment callback."""
+    q = np.asarray([0.0, -0.6, 1.2, 0.0, 0.8, 0.0])
+    T = robot.link_transforms(q)
+    p = model.inner_points(T)["gripper"]
+    region = _box(tuple(p), (1.2, 1.2, 1.2))
+    from polyhull.distance import manifold_to_fcl, winding_numbers
+
+    mesh = region.to_mesh64()
+    v, t = np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)
+    result = model.distance(
+        T, static=manifold_to_fcl(region), static_contains=lambda pts: winding_numbers(pts, v, t) > 0.5
+    )
+    assert result.distance == 0.0
 
 
 def test_golden_engine_values() -> None:
@@ -92,8 +142,13 @@ def test_golden_engine_values() -> None:
     for g, w in zip(got["frames"], want["frames"], strict=True):
         assert g["file"] == w["file"]
         assert g["faults"] == w["faults"]
-        for key in ("volume_hull", "volume_robot_occlusion", "volume_region", "min_distance"):
-            if w[key] is None:
-                assert g[key] is None
-            else:
-                assert np.isclose(g[key], w[key], rtol=1e-6, atol=1e-9), (w["file"], key, g[key], w[key])
+        # Tolerances follow what differs between machines: the reference depth is ray cast
+        # in float32 (embree builds differ), so a pixel at the edge of the static band can
+        # change class and with it one piece (a tile of at most 8 x 8 pixels, ~1e-3 m^3 in
+        # the small cell) and the distance by up to a tile's width at 3 m (~0.06 m).
+        for key in ("volume_hull", "volume_robot_occlusion", "volume_region"):
+            assert np.isclose(g[key], w[key], rtol=0.02, atol=2e-3), (w["file"], key, g[key], w[key])
+        if w["min_distance"] is None:
+            assert g["min_distance"] is None
+        else:
+            assert abs(g["min_distance"] - w["min_distance"]) <= 0.06, (w["file"], g["min_distance"], w["min_distance"])

@@ -179,7 +179,7 @@ def test_exceptions_become_verdicts(fresh_monitor: Monitor, monkeypatch: pytest.
     def broken(*args: object, **kwargs: object) -> None:
         raise exc
 
-    monkeypatch.setattr(monitor_module, "depth_hull", broken)
+    monkeypatch.setattr(monitor_module, "carve", broken)
     v = m.step(_clean(m, 1.0), _q(m), stamp=1.0)
     _assert_fault(v, type(exc).__name__, "boom")
     monkeypatch.undo()
