@@ -86,21 +86,40 @@ def hexahedra_triangles(vertices: ArrayF64) -> tuple[ArrayF64, np.ndarray]:
 
 
 def points_in_hexahedra(points: ArrayF64, vertices: ArrayF64) -> np.ndarray:
-    """(P,) whether each point lies inside (or on) some convex hexahedron (N, 8, 3)."""
+    """(P,) whether each point lies inside (or on) some convex hexahedron (N, 8, 3).
+
+    Candidate pairs come from a k-d tree of the points queried with each hexahedron's
+    bounding sphere, so memory follows the pairs that can meet, not P x N.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    out = np.zeros(len(points), dtype=bool)
     if len(points) == 0 or vertices.shape[0] == 0:
-        return np.zeros(len(points), dtype=bool)
+        return out
+    from scipy.spatial import cKDTree
+
     f = vertices[:, _HEX_FACES]  # (N, 6, 4, 3)
     n = np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
-    n2 = np.cross(f[:, :, 2] - f[:, :, 0], f[:, :, 3] - f[:, :, 0])
-    n = n + n2  # robust when a quad has a degenerate corner
-    c = vertices.mean(axis=1)  # (N, 3)
+    n = n + np.cross(f[:, :, 2] - f[:, :, 0], f[:, :, 3] - f[:, :, 0])  # robust to a degenerate corner
+    c = vertices.mean(axis=1)  # (N, 3), inside each convex piece
     d = np.einsum("nfk,nfk->nf", n, f[:, :, 0])
     outward = np.einsum("nfk,nk->nf", n, c) < d
     n = np.where(outward[:, :, None], n, -n)
     d = np.where(outward, d, -d)
     tol = 1e-9 * (1.0 + np.abs(d))
-    inside = np.einsum("nfk,pk->pnf", n, points) <= (d + tol)[None]
-    return inside.all(axis=2).any(axis=1)
+    radius = np.linalg.norm(vertices - c[:, None, :], axis=2).max(axis=1)
+    tree = cKDTree(points)
+    for lo in range(0, len(c), 4096):
+        hits = tree.query_ball_point(c[lo : lo + 4096], radius[lo : lo + 4096] + 1e-9)
+        counts = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
+        if counts.sum() == 0:
+            continue
+        piece = np.repeat(np.arange(lo, lo + len(hits)), counts)
+        pts = np.fromiter((i for h in hits for i in h), dtype=np.int64, count=int(counts.sum()))
+        todo = ~out[pts]
+        piece, pts = piece[todo], pts[todo]
+        inside = (np.einsum("pfk,pk->pf", n[piece], points[pts]) <= (d + tol)[piece]).all(axis=1)
+        out[pts[inside]] = True
+    return out
 
 
 def winding_numbers(points: ArrayF64, vertices: ArrayF64, triangles: np.ndarray) -> ArrayF64:

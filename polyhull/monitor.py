@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, TypeVar
 
 import manifold3d as m3
@@ -628,10 +628,14 @@ class Monitor:
         zhi = np.asarray(cell.zone.max, dtype=np.float64)
         k = cell.reconstruction.k_of_n
 
+        # A camera without a usable frame frees nothing: its whole image becomes pieces. That
+        # cycle stops the robot anyway (the fault latches), so its pieces are not split.
+        params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
+
         def run_carve(
             init: np.ndarray, frees: list[np.ndarray | None], ends: list[np.ndarray | None]
         ) -> tuple[PieceSet, bool]:
-            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, self._carve)
+            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, params)
 
         pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_imgs, end_imgs))
         if overflow:
