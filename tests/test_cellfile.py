@@ -293,6 +293,7 @@ background_mismatch = 0.1
 joint_state_max_age = 0.2
 [reconstruction]
 block = 4
+tile = 4
 k_of_n = 1
 shadow_memory = false
 [plausibility]
