@@ -35,6 +35,8 @@ class Style:
         obstacle_solid: Static solids O(j) (a person cannot enter them).
         obstacle_open: Static objects a person can enter (drawn see-through).
         obstacle_open_opacity: Opacity of those.
+        enclosure_opacity: Opacity of solids outside the zone (walls, fences), drawn as
+            faint glass with their edges so they never hide the cell from the view.
         robot: Robot links; orange, a hue nothing else uses.
         camera_body: The small box marking a camera.
         hull: The depth hull C (possibly occupied by some camera's verdict).
@@ -56,6 +58,7 @@ class Style:
     obstacle_solid: int = 0x8A8F98
     obstacle_open: int = 0xB8C8DC
     obstacle_open_opacity: float = 0.45
+    enclosure_opacity: float = 0.08
     robot: int = 0xFF8C00
     camera_body: int = 0x202428
     hull: int = 0x3C78D8

@@ -209,13 +209,20 @@ def draw_cell(
     root["cell"].delete()
     zone = cell.zone.manifold()
     root["cell/zone"].set_object(wireframe_object(*manifold_arrays(zone), style.zone))
+    zone_lo, zone_hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
     for obstacle in cell.obstacles:
         vertices, faces = trimesh_arrays(obstacle.mesh)
-        if obstacle.solid:
-            obj = mesh_object(vertices, faces, style.obstacle_solid)
+        node = root["cell/obstacles"][safe_name(obstacle.name)]
+        lo, hi = obstacle.mesh.bounds
+        if np.any(lo >= zone_hi - 1e-9) or np.any(hi <= zone_lo + 1e-9):
+            # An enclosure (wall, fence) outside Z: faint glass and edges, so the view
+            # into the cell stays open.
+            node.set_object(mesh_object(vertices, faces, style.obstacle_solid, style.enclosure_opacity))
+            node["edges"].set_object(wireframe_object(vertices, faces, style.obstacle_solid))
+        elif obstacle.solid:
+            node.set_object(mesh_object(vertices, faces, style.obstacle_solid))
         else:
-            obj = mesh_object(vertices, faces, style.obstacle_open, style.obstacle_open_opacity)
-        root["cell/obstacles"][safe_name(obstacle.name)].set_object(obj)
+            node.set_object(mesh_object(vertices, faces, style.obstacle_open, style.obstacle_open_opacity))
 
     resolved = _resolve_robot(cell, robot)
     if resolved is None:
