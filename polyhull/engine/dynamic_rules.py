@@ -105,15 +105,26 @@ GROUP_PITCH = 0.05
 """Voxel side [m] of the grouping: boxes sharing a voxel are one component."""
 
 
+GROUP_MAX_VOXELS = 2_000_000
+"""Budget of box-voxel pairs of one grouping; beyond it the pitch is coarsened."""
+
+
 def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
     """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growth by
     ``eps`` meets a common voxel of ``GROUP_PITCH`` are grouped (a superset of the pairs
-    that overlap: grouping more only makes the rules fire less)."""
+    that overlap: grouping more only makes the rules fire less). When the boxes span more
+    than ``GROUP_MAX_VOXELS`` voxels in all (a camera without a frame makes whole-image
+    pieces), the pitch is doubled until they fit, which groups more."""
     if lo.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     origin = lo.min(axis=0) - eps
-    a = np.floor((lo - eps - origin) / GROUP_PITCH).astype(np.int64)
-    b = np.floor((hi + eps - origin) / GROUP_PITCH).astype(np.int64)
+    pitch = GROUP_PITCH
+    while True:
+        a = np.floor((lo - eps - origin) / pitch).astype(np.int64)
+        b = np.floor((hi + eps - origin) / pitch).astype(np.int64)
+        if float(np.prod((b - a + 1).astype(np.float64), axis=1).sum()) <= GROUP_MAX_VOXELS:
+            break
+        pitch *= 2.0
     dims = b.max(axis=0) + 1
     roots = _group(a, b, dims)
     _, labels = np.unique(roots, return_inverse=True)
