@@ -439,6 +439,38 @@ def _mark_boxes(occ, a, b):  # pragma: no cover - compiled
                     occ[x, y, z] = 1
 
 
+def _region_voxels(region: m3.Manifold, lo: ArrayF64, hi: ArrayF64, pitch: float) -> np.ndarray:
+    """Voxels (over the box [lo, hi], side ``pitch``) holding a sample of the region's
+    surface (sampled finer than half the pitch) or whose centre is enclosed by it."""
+    shape = np.maximum(np.ceil((hi - lo) / pitch).astype(np.int64), 1)
+    occ = np.zeros(tuple(shape), dtype=bool)
+    if not region.is_empty():
+        mesh = region.to_mesh64()
+        v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
+        t = np.asarray(mesh.tri_verts, dtype=np.int64)
+        a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+        size = np.maximum(np.linalg.norm(b - a, axis=1), np.linalg.norm(c - a, axis=1))
+        size = np.maximum(size, np.linalg.norm(c - b, axis=1))
+        steps = np.clip(np.ceil(size / (0.5 * pitch)).astype(np.int64), 1, 400)
+        for n in np.unique(steps):
+            sel = steps == n
+            s = np.arange(n + 1) / n
+            uu, vv = np.meshgrid(s, s)
+            keep = uu + vv <= 1.0
+            uu, vv = uu[keep], vv[keep]
+            pts = (
+                a[sel][:, None, :]
+                + uu[None, :, None] * (b[sel] - a[sel])[:, None, :]
+                + vv[None, :, None] * (c[sel] - a[sel])[:, None, :]
+            ).reshape(-1, 3)
+            idx = np.floor((pts - lo) / pitch).astype(np.int64)
+            ok = np.all((idx >= 0) & (idx < shape), axis=1)
+            occ[tuple(idx[ok].T)] = True
+        # The inside: fill the enclosed voxels of every z layer.
+        occ = ndimage.binary_fill_holes(occ)
+    return occ
+
+
 @dataclass(frozen=True, eq=False)
 class TouchGrid:
     """Where a region is, on a voxel grid: box queries in O(1) by a summed-volume table.
@@ -454,47 +486,19 @@ class TouchGrid:
     table: np.ndarray
 
     @classmethod
-    def of(cls, region: m3.Manifold, lo: ArrayF64, hi: ArrayF64, pitch: float, grow: float) -> TouchGrid:
-        """Voxels within ``grow`` [m] of ``region`` (its surface, and its inside) over the box.
-
-        A voxel is marked when a point of the region's surface, sampled finer than the
-        pitch, falls in it, or when its centre is inside; then the marks are dilated by
-        ``ceil(grow / pitch) + 1`` voxels, so every voxel within ``grow`` of the region is
-        marked (a superset: "touches" is answered yes more often, which keeps more).
-        """
+    def within(cls, region: m3.Manifold, lo: ArrayF64, hi: ArrayF64, pitch: float, distance: float) -> TouchGrid:
+        """Voxels that may hold a point within ``distance`` [m] of ``region``, by the
+        Euclidean distance transform of :func:`_region_voxels`: a voxel is marked when the
+        distance between its centre and a marked voxel's centre is at most ``distance`` plus
+        ``(sqrt(3) + 1) pitch`` (both points anywhere in their voxels, and a surface point
+        between two samples), a superset."""
         lo = np.asarray(lo, dtype=np.float64)
-        hi = np.asarray(hi, dtype=np.float64)
-        shape = np.maximum(np.ceil((hi - lo) / pitch).astype(np.int64), 1)
-        occ = np.zeros(tuple(shape), dtype=bool)
-        if not region.is_empty():
-            mesh = region.to_mesh64()
-            v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-            t = np.asarray(mesh.tri_verts, dtype=np.int64)
-            a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
-            size = np.maximum(np.linalg.norm(b - a, axis=1), np.linalg.norm(c - a, axis=1))
-            size = np.maximum(size, np.linalg.norm(c - b, axis=1))
-            steps = np.clip(np.ceil(size / (0.5 * pitch)).astype(np.int64), 1, 400)
-            for n in np.unique(steps):
-                sel = steps == n
-                s = np.arange(n + 1) / n
-                uu, vv = np.meshgrid(s, s)
-                keep = uu + vv <= 1.0
-                uu, vv = uu[keep], vv[keep]
-                pts = (
-                    a[sel][:, None, :]
-                    + uu[None, :, None] * (b[sel] - a[sel])[:, None, :]
-                    + vv[None, :, None] * (c[sel] - a[sel])[:, None, :]
-                ).reshape(-1, 3)
-                idx = np.floor((pts - lo) / pitch).astype(np.int64)
-                ok = np.all((idx >= 0) & (idx < shape), axis=1)
-                occ[tuple(idx[ok].T)] = True
-            # The inside: fill the enclosed voxels of every z layer.
-            occ = ndimage.binary_fill_holes(occ)
-        r = int(math.ceil(grow / pitch)) + 1
+        occ = _region_voxels(region, lo, np.asarray(hi, dtype=np.float64), pitch)
         if occ.any():
-            occ = ndimage.binary_dilation(occ, iterations=r)
-        table = np.zeros(tuple(shape + 1), dtype=np.int64)
-        table[1:, 1:, 1:] = occ.astype(np.int64).cumsum(0).cumsum(1).cumsum(2)
+            edt = ndimage.distance_transform_edt(~occ)
+            occ = edt <= distance / pitch + math.sqrt(3.0) + 1.0
+        table = np.zeros(tuple(np.asarray(occ.shape) + 1), dtype=np.int32)
+        table[1:, 1:, 1:] = occ.astype(np.int32).cumsum(0).cumsum(1).cumsum(2)
         return cls(lo, float(pitch), table)
 
     @classmethod
@@ -689,7 +693,7 @@ class StaticModel:
         region = check_manifold(result.region, "static region R3_static")
         lo = np.asarray(cell.zone.min) - 0.1
         hi = np.asarray(cell.zone.max) + 0.1
-        touch = TouchGrid.of(region, lo, hi, pitch=0.05, grow=p.support_eps)
+        touch = TouchGrid.within(region, lo, hi, pitch=0.05, distance=p.support_eps)
         return cls(
             cameras=tuple(cams),
             zone=zone,
@@ -721,7 +725,7 @@ class StaticModel:
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-2"
+_CACHE_FORMAT = b"polyhull-static-model-3"
 
 
 def cache_directory() -> Path | None:
