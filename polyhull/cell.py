@@ -304,6 +304,9 @@ class PlausibilityParams:
             component of the previous cycle.
         teleport: Remove components farther than ``human_speed_max * dt`` from every
             component of the previous cycle.
+        small_gaps: In image space, free the segments of pixel clusters too narrow to hide
+            an object of ``detection_size`` (dropout patches, flying and out-of-range
+            pixels walled in by pixels that read the static scene).
         support_eps: Contact tolerance [m] of the flying rule.
         min_volume: Smallest volume [m^3] of a person part that can appear alone.
         shell_thickness: Thickness [m] of the noise shell around known objects.
@@ -311,6 +314,8 @@ class PlausibilityParams:
         floor_shell_height: Height [m] of the floor shell; above the noise band, below
             the thickness of a person lying down.
         floor_shell_margin: Horizontal reach [m] of feet around the legs' cross-section.
+        detection_size: The detection capability [m]: the smallest cross-section of an
+            object the small_gaps rule never removes.
         entry_areas: Declared entry areas.
     """
 
@@ -321,12 +326,14 @@ class PlausibilityParams:
     too_thin: bool = True
     entry: bool = False
     teleport: bool = False
+    small_gaps: bool = True
     support_eps: float = 0.05
     min_volume: float = 0.001
     shell_thickness: float = 0.04
     human_speed_max: float = 2.0
     floor_shell_height: float = 0.25
     floor_shell_margin: float = 0.3
+    detection_size: float = 0.07
     entry_areas: tuple[EntryArea, ...] = ()
 
     def __post_init__(self) -> None:
@@ -337,6 +344,7 @@ class PlausibilityParams:
             "human_speed_max",
             "floor_shell_height",
             "floor_shell_margin",
+            "detection_size",
         ):
             value = getattr(self, name)
             if not (isinstance(value, int | float) and np.isfinite(value) and value >= 0):

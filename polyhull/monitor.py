@@ -36,11 +36,19 @@ from scipy.spatial import ConvexHull
 
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, winding_numbers
+from .engine.boxes import any_overlap
 from .engine.dynamic_rules import DynamicContext, DynamicResult, judge_dynamic
-from .engine.pieces import CameraStack, CarveParams, PieceSet, carve, piece_volumes
-from .engine.pixels import FreePyramid, classify_frame, free_pyramid, memory_segments, tile_segments
+from .engine.pieces import CameraStack, CarveParams, PieceSet, carve, piece_vertices, piece_volumes
+from .engine.pixels import (
+    FreePyramid,
+    classify_frame,
+    free_pyramid,
+    memory_segments,
+    small_gaps,
+    tile_segments,
+)
 from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
-from .engine.static_model import StaticModel, TouchGrid
+from .engine.static_model import StaticModel
 from .errors import PolyhullError
 from .frames import DepthFrame
 from .occlusion import robot_occlusion
@@ -286,6 +294,9 @@ class Monitor:
             robot = Robot.from_spec(cell.robot)
         self.robot = robot
         self._padding = cell.robot.padding if cell.robot is not None else 0.0
+        # A tile's merged piece may reach this far into the robot's padding (never the
+        # robot itself, so never a false contact); deeper, the tile is split into pixels.
+        self._tile_tol = 0.5 * self._padding
         # Pieces grow by at most padding * sqrt(3) (cube corners): that is the margin added
         # to the protective separation distance.
         self._margin = self._padding * math.sqrt(3.0)
@@ -574,6 +585,7 @@ class Monitor:
         pyramids: list[FreePyramid | None] = []
         active = np.zeros(len(cell.cameras), dtype=bool)
         init_parts = []
+        gap_parts: list[np.ndarray] = []
         unexplained = 0
         inf_img: dict[tuple[int, int], np.ndarray] = {}
         for i, (cam, s) in enumerate(zip(cell.cameras, self.static.cameras, strict=True)):
@@ -594,10 +606,26 @@ class Monitor:
                 near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
                 is_color=cam.kind == "color",
             )
+            if cell.plausibility.small_gaps and depth is not None:
+                gap = small_gaps(
+                    cls.free, cls.end, cls.invalid, s.free_static, cam.near,
+                    cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
+                )
+                if gap.any():
+                    v_idx, u_idx = np.nonzero(gap)
+                    gap_parts.append(
+                        np.column_stack(
+                            [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[gap], cls.end[gap]]
+                        )
+                    )
+                    cls.free[gap] = cls.end[gap]
             free_imgs.append(cls.free)
             end_imgs.append(cls.end)
             unexplained += cls.unexplained
-            tiles = tile_segments(cls.free, cls.end, covered, cell.reconstruction.tile)
+            tiles = tile_segments(
+                cls.free, cls.end, covered, cell.reconstruction.tile,
+                None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
+            )
             if len(tiles):
                 init_parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
             if depth is None:
@@ -633,9 +661,12 @@ class Monitor:
         params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
 
         def run_carve(
-            init: np.ndarray, frees: list[np.ndarray | None], ends: list[np.ndarray | None]
+            init: np.ndarray, frees: list[np.ndarray | None], ends: list[np.ndarray | None], coarse: bool = False
         ) -> tuple[PieceSet, bool]:
-            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, params)
+            p = params
+            if coarse:
+                p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
+            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, p)
 
         pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_imgs, end_imgs))
         if overflow:
@@ -732,7 +763,7 @@ class Monitor:
         return Verdict(
             stamp=t,
             q=np.asarray(qv, dtype=np.float64),
-            removed=self.static.removed + result.removed,
+            removed=self.static.removed + _gaps_removed(gap_parts, self._stack) + result.removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,
@@ -744,6 +775,7 @@ class Monitor:
             timings=timings,
             counts={
                 "unexplained_pixels": int(unexplained),
+                "small_gap_pixels": int(sum(len(g) for g in gap_parts)),
                 "initial_pieces": int(initial.shape[0]),
                 "pieces": len(pieces),
                 "memory_pieces": len(memory),
@@ -814,17 +846,16 @@ class Monitor:
             f, e = memory_segments(raster.covered, raster.back, free, s.free_static, rects, zr)
             mem_free.append(f)
             ends.append(e)
-            tiles = tile_segments(f, e, raster.covered, self.cell.reconstruction.tile)
+            tiles = tile_segments(f, e, raster.covered, self.cell.reconstruction.tile, raster.front, raster.back, self._tile_tol)
             if len(tiles):
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
             return PieceSet.empty()
         # carved by the cameras' free depth; split along the memory segments
-        pieces, _ = run_carve(np.concatenate(parts), mem_free, ends)
+        pieces, _ = run_carve(np.concatenate(parts), mem_free, ends, True)
         if not len(pieces):
             return pieces
-        grid = TouchGrid.of_boxes(lo, hi, lo.min(axis=0), hi.max(axis=0), 0.05)
-        return pieces.select(grid.any_in(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1)))
+        return pieces.select(any_overlap(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1), lo, hi))
 
     def _full_pieces(
         self,
@@ -846,7 +877,8 @@ class Monitor:
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
             return np.zeros((0, 8, 3))
-        pieces, _ = run_carve(np.concatenate(parts), free_imgs, ends)
+        # C is drawn and measured, never used for the distance: coarse pieces (a superset)
+        pieces, _ = run_carve(np.concatenate(parts), free_imgs, ends, True)
         return pieces.vertices
 
     def _occlusion(self, padded_world: list[ArrayF64]) -> m3.Manifold:
@@ -859,6 +891,36 @@ class Monitor:
         ]
         union = m3.Manifold.batch_boolean([f for f in self.static.free if not f.is_empty()], m3.OpType.Add) ^ self._zone
         return robot_occlusion(self.cell.cameras, self.static.free, union, padded_world, bands)
+
+
+MEMORY_PIECE = 0.2
+"""Smallest split [m] of the shadow memory's pieces (and of the hull C's, built only when
+read). Memory pieces start behind the padded robot, so their distance is about the
+padding whatever their size; finer pieces only cost time."""
+
+
+def _gaps_removed(parts: list[np.ndarray], stack: CameraStack) -> tuple[RemovedComponent, ...]:
+    """The segments the small_gaps rule freed this cycle, as one reported removal."""
+    if not parts:
+        return ()
+    boxes = np.concatenate(parts)
+    vols = piece_volumes(boxes, stack)
+    verts = piece_vertices(boxes, stack)
+    centroid = (verts.mean(axis=1) * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
+    return (RemovedComponent("small_gaps", float(vols.sum()), centroid, _LazyHexahedra(verts)),)
+
+
+class _LazyHexahedra:
+    """The union of hexahedra as a manifold, built when first read."""
+
+    def __init__(self, vertices: ArrayF64) -> None:
+        self._vertices = vertices
+        self._mesh: m3.Manifold | None = None
+
+    def get(self) -> m3.Manifold:
+        if self._mesh is None:
+            self._mesh = _hexahedra_manifold(self._vertices)
+        return self._mesh
 
 
 def _robot_body(padded_world: list[ArrayF64]) -> m3.Manifold:

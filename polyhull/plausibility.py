@@ -144,8 +144,9 @@ class RemovedComponent:
     """A component removed by a plausibility rule (reported in the verdict).
 
     Attributes:
-        rule: The rule that removed it, one of ``RULE_ORDER`` or ``"sheet"`` (the noise
-            sheet in front of a known surface, judged at precompute).
+        rule: The rule that removed it, one of ``RULE_ORDER``, ``"sheet"`` (the noise
+            sheet in front of a known surface, judged at precompute) or ``"small_gaps"``
+            (pixel clusters too narrow to hide a detectable object, judged in image space).
         volume: Its volume [m^3].
         centroid: (3,) its volume centroid in the world frame [m].
         mesh: The component, world frame (built when first read for dynamic components).

@@ -310,6 +310,8 @@ floor_shell = false
 keep_at_boundary = false
 floor_shell_height = 0.3
 floor_shell_margin = 0.4
+small_gaps = false
+detection_size = 0.05
 """
     cell = load_cell(write_cell(tmp_path, text))
     for section, params in (

@@ -1,8 +1,8 @@
 """Plausibility of the dynamic part: the rules of SPEC section 2 on this cycle's components.
 
-Components are groups of pieces whose bounding boxes, grown by ``TOUCH_EPS``, meet a common
-voxel of ``GROUP_PITCH`` (a superset of "touch or overlap": grouping more only makes a rule
-fire less, since every rule spares a set whenever it spares a part of it). A component is judged together with
+Components are groups of pieces whose bounding boxes, grown by ``TOUCH_EPS``, overlap
+(transitively; a superset of "touch or overlap": grouping more only makes a rule fire less,
+since every rule spares a set whenever it spares a part of it). A component is judged together with
 what it touches:
 
 - a **kept static component** (the static touch grid marks voxels within ``support_eps``
@@ -34,10 +34,12 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
 5. ``teleport``: farther than ``human_speed_max * dt`` from every component of the previous
    cycle, and touching neither the boundary, an entry area nor M.
 
-A kept component keeps the **noise sheet under it**: for every kept piece within a sheet's
-thickness of its face (floor, obstacle face), a box over the piece's footprint on that face,
-grown by ``floor_shell_margin``, as thick as the sheet (a standing person's feet are in the
-floor's sheet, within that margin of their legs).
+A kept component keeps the **noise sheet under it**: for every kept piece that crosses the
+top of a sheet (floor, obstacle face), a box over the piece's footprint on that face, grown
+by ``floor_shell_margin``, as thick as the sheet: a standing person's legs cross the top of
+the floor's sheet, and their feet are in the sheet within that margin of the legs. Pieces
+wholly inside a sheet (noise in the band, a limb lying flatter than the sheet) do not
+extend it: ``floor_shell_height`` declares that nobody lies flatter.
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ import numpy as np
 from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
+from .boxes import any_overlap, overlap_groups
 from .static_model import Sheet, TouchGrid, _to_world
 
 __all__ = ["TOUCH_EPS", "DynamicContext", "DynamicResult", "group_boxes", "judge_dynamic", "box_vertices"]
@@ -59,76 +62,16 @@ TOUCH_EPS = 1e-4
 """Growth [m] of piece bounding boxes when grouping them into components."""
 
 
-@nb.njit(cache=True, nogil=True)
-def _find(parent, i):  # pragma: no cover - compiled
-    while parent[i] != i:
-        parent[i] = parent[parent[i]]
-        i = parent[i]
-    return i
-
-
-@nb.njit(cache=True, nogil=True)
-def _group(a, b, dims):  # pragma: no cover - compiled
-    """Union of boxes sharing a voxel; a, b (N, 3) inclusive voxel index ranges."""
-    n = a.shape[0]
-    total = 0
-    for i in range(n):
-        total += (b[i, 0] - a[i, 0] + 1) * (b[i, 1] - a[i, 1] + 1) * (b[i, 2] - a[i, 2] + 1)
-    keys = np.empty(total, dtype=np.int64)
-    owner = np.empty(total, dtype=np.int64)
-    k = 0
-    for i in range(n):
-        for x in range(a[i, 0], b[i, 0] + 1):
-            for y in range(a[i, 1], b[i, 1] + 1):
-                for z in range(a[i, 2], b[i, 2] + 1):
-                    keys[k] = (x * dims[1] + y) * dims[2] + z
-                    owner[k] = i
-                    k += 1
-    order = np.argsort(keys)
-    parent = np.arange(n)
-    for j in range(1, total):
-        if keys[order[j]] == keys[order[j - 1]]:
-            ri = _find(parent, owner[order[j]])
-            rj = _find(parent, owner[order[j - 1]])
-            if ri != rj:
-                parent[ri] = rj
-    labels = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        labels[i] = _find(parent, i)
-    return labels
-
-
 SHEET_PITCH = 0.1
 """Grid cell [m] on which the sheet boxes under kept pieces are merged (outward)."""
 
-GROUP_PITCH = 0.05
-"""Voxel side [m] of the grouping: boxes sharing a voxel are one component."""
-
-
-GROUP_MAX_VOXELS = 2_000_000
-"""Budget of box-voxel pairs of one grouping; beyond it the pitch is coarsened."""
-
 
 def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
-    """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growth by
-    ``eps`` meets a common voxel of ``GROUP_PITCH`` are grouped (a superset of the pairs
-    that overlap: grouping more only makes the rules fire less). When the boxes span more
-    than ``GROUP_MAX_VOXELS`` voxels in all (a camera without a frame makes whole-image
-    pieces), the pitch is doubled until they fit, which groups more."""
-    if lo.shape[0] == 0:
-        return np.zeros(0, dtype=np.int64)
-    origin = lo.min(axis=0) - eps
-    pitch = GROUP_PITCH
-    while True:
-        a = np.floor((lo - eps - origin) / pitch).astype(np.int64)
-        b = np.floor((hi + eps - origin) / pitch).astype(np.int64)
-        if float(np.prod((b - a + 1).astype(np.float64), axis=1).sum()) <= GROUP_MAX_VOXELS:
-            break
-        pitch *= 2.0
-    dims = b.max(axis=0) + 1
-    roots = _group(a, b, dims)
-    _, labels = np.unique(roots, return_inverse=True)
-    return labels.astype(np.int64)
+    """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growths by
+    ``eps`` overlap are grouped, transitively (pieces that touch or overlap have
+    overlapping bounding boxes, so every true component lies in one group; grouping more
+    only makes the rules fire less)."""
+    return overlap_groups(lo - eps, hi + eps)
 
 
 def box_vertices(lo: ArrayF64, hi: ArrayF64) -> ArrayF64:
@@ -338,9 +281,7 @@ def judge_dynamic(
             # Within the margin of any piece outside the shells (a superset of "of its own
             # component": keeps more).
             m = p.floor_shell_margin
-            olo, ohi = lo[~inside] - m, hi[~inside] + m
-            grid = TouchGrid.of_boxes(olo, ohi, olo.min(axis=0), ohi.max(axis=0), pitch=0.05)
-            shell_cut[shell_cut] = ~grid.any_in(lo[shell_cut], hi[shell_cut])
+            shell_cut[shell_cut] = ~any_overlap(lo[shell_cut], hi[shell_cut], lo[~inside] - m, hi[~inside] + m)
     fires: dict[str, np.ndarray] = {}
     if p.too_small:
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
@@ -420,7 +361,9 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
             continue
         (x0, y0), (x1, y1) = sh.local_box()
         llo, lhi = _local_bounds(vertices[idx], sh)
-        near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= -eps)
+        # pieces that cross the sheet's top face: what stands on the surface (legs) crosses
+        # it; its feet, inside the sheet, lie within the margin of that crossing
+        near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= sh.height)
         near &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
         if not near.any():
             continue

@@ -32,6 +32,7 @@ __all__ = [
     "free_pyramid",
     "tile_segments",
     "memory_segments",
+    "small_gaps",
 ]
 
 
@@ -43,6 +44,7 @@ class PixelClasses(NamedTuple):
         end: (H, W) end of each pixel's occluded segment [m]; a segment exists where
             ``free < end``.
         unexplained: Number of pixels with a segment.
+        invalid: (H, W) pixels with no usable reading (0, NaN, -inf, out of range).
         invalid_share: Share of the pixels that see the empty cell within range and now
             have no usable depth.
         far_side_share: Share of those pixels reading farther than the static band (the
@@ -52,12 +54,13 @@ class PixelClasses(NamedTuple):
     free: ArrayF32
     end: ArrayF32
     unexplained: int
+    invalid: np.ndarray
     invalid_share: float
     far_side_share: float
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end):  # pragma: no cover - compiled
+def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end, out_invalid):  # pragma: no cover - compiled
     H, W = depth.shape
     n_invalid = 0
     n_far = 0
@@ -67,6 +70,7 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
         for u in range(W):
             f_s = np.float64(fs[v, u])
             d = np.float64(depth[v, u])
+            out_invalid[v, u] = False
             if f_s <= near:
                 free = near
             elif d >= T[v, u] and d <= U[v, u]:
@@ -85,6 +89,7 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
                     de = near
                 if not usable:
                     n_invalid += 1
+                    out_invalid[v, u] = True
                     f = near
                 elif is_color:
                     f = near if de < T[v, u] else f_s
@@ -142,12 +147,78 @@ def classify_frame(
     H, W = free_static.shape
     out_free = np.empty((H, W), dtype=np.float32)
     out_end = np.empty((H, W), dtype=np.float32)
+    out_invalid = np.empty((H, W), dtype=np.bool_)
     n_seg, n_invalid, n_far, n_seen = _classify(
         depth, reference, lower, upper, free_static, shadow_start,
-        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end,
+        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
     )
     seen = max(int(n_seen), 1)
-    return PixelClasses(out_free, out_end, int(n_seg), n_invalid / seen, n_far / seen)
+    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen)
+
+
+@nb.njit(cache=True, nogil=True)
+def _gap_stats(labels, n, free, end, fs, near):  # pragma: no cover - compiled
+    """Per label: pixel bounding box, farthest segment end, and whether every 8-neighbour
+    outside the label is inside the image, sees something and is free to its static
+    free depth."""
+    H, W = labels.shape
+    u0 = np.full(n + 1, W, dtype=np.int64)
+    u1 = np.full(n + 1, -1, dtype=np.int64)
+    v0 = np.full(n + 1, H, dtype=np.int64)
+    v1 = np.full(n + 1, -1, dtype=np.int64)
+    zmax = np.zeros(n + 1)
+    closed = np.ones(n + 1, dtype=np.bool_)
+    for v in range(H):
+        for u in range(W):
+            k = labels[v, u]
+            if k == 0:
+                continue
+            u0[k] = min(u0[k], u)
+            u1[k] = max(u1[k], u)
+            v0[k] = min(v0[k], v)
+            v1[k] = max(v1[k], v)
+            zmax[k] = max(zmax[k], np.float64(end[v, u]))
+            if not closed[k]:
+                continue
+            for dv in range(-1, 2):
+                for du in range(-1, 2):
+                    vv, uu = v + dv, u + du
+                    if vv < 0 or vv >= H or uu < 0 or uu >= W:
+                        closed[k] = False
+                    elif labels[vv, uu] != k and (fs[vv, uu] <= near or free[vv, uu] < fs[vv, uu]):
+                        closed[k] = False
+    return u0, u1, v0, v1, zmax, closed
+
+
+def small_gaps(
+    free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
+) -> np.ndarray:
+    """(H, W) the pixels without a reading whose segments are too narrow to hide an object
+    of ``size`` [m].
+
+    Only pixels with no usable reading (dropouts, out of range) are candidates: a valid
+    reading in front of the background is an observation (a hand seen through a gap) and
+    is never filled. Their segments (``free < end``) are grouped into 8-connected
+    clusters. When every pixel around a cluster reads the static scene (free to its static
+    free depth), an object in the cluster's segments is walled in by free pixel
+    footprints, or reaches beyond them only into the static region behind them: its
+    cross-section in the cluster's rays is under ``(extent + 2) px * z / f`` at the
+    cluster's farthest segment end z. When that is under ``size`` on both image axes, the
+    cluster cannot hide an object the system is declared to detect (its detection
+    capability) that shows no reading at all: a dropout patch, out-of-range pixels.
+    Clusters at the image border, next to pixels that see nothing, or next to the robot,
+    a person or a flying pixel, are never small gaps.
+    """
+    from scipy import ndimage
+
+    mask = (free < end) & invalid
+    if not mask.any():
+        return mask
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    u0, u1, v0, v1, zmax, closed = _gap_stats(labels, n, free, end, free_static, float(near))
+    small = closed & ((u1 - u0 + 3) * zmax / fx < size) & ((v1 - v0 + 3) * zmax / fy < size)
+    small[0] = False
+    return small[labels]
 
 
 class FreePyramid(NamedTuple):
@@ -214,13 +285,17 @@ def free_pyramid(free: ArrayF32) -> FreePyramid:
 
 
 @nb.njit(cache=True, nogil=True)
-def _tile_segments(free, end, covered, tile):  # pragma: no cover - compiled
+def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no cover - compiled
     """Pieces (u0, u1, v0, v1 pixel indices inclusive, z0, z1) of one camera.
 
-    A tile without robot pixels gives one piece: the bounding rectangle of its segment
-    pixels, from their smallest start to their largest end (a superset of their union).
-    A tile with a robot-covered pixel gives one piece per segment pixel, so that no piece
-    reaches past the robot's shadow start of another pixel.
+    A tile gives one piece, the bounding rectangle of its segment pixels from their
+    smallest start to their largest end (a superset of their union), when that piece
+    stays out of the padded robot in every robot-covered pixel of the tile (its depth
+    range ends before ``front + tol`` or starts after ``back - tol`` there: it reaches at
+    most ``tol`` into the padding). Otherwise it gives one piece per run of segment pixels
+    along a row, each run as long as its piece stays out of the padded robot likewise in
+    its own pixels (a single pixel's piece always does: it ends at the robot's shadow start
+    or starts behind it).
     """
     H, W = free.shape
     Hb = (H + tile - 1) // tile
@@ -234,32 +309,63 @@ def _tile_segments(free, end, covered, tile):  # pragma: no cover - compiled
             u0 = ub * tile
             v1 = min(v0 + tile, H)
             u1 = min(u0 + tile, W)
-            robot = False
             any_seg = False
+            zlo = np.inf
+            zhi = -np.inf
             for v in range(v0, v1):
                 for u in range(u0, u1):
                     if free[v, u] < end[v, u]:
                         any_seg = True
-                        if covered[v, u]:
-                            robot = True
+                        zlo = min(zlo, np.float64(free[v, u]))
+                        zhi = max(zhi, np.float64(end[v, u]))
             if not any_seg:
                 continue
+            robot = False
+            for v in range(v0, v1):
+                for u in range(u0, u1):
+                    if covered[v, u]:
+                        if not (zhi <= np.float64(front[v, u]) + tol or zlo >= np.float64(back[v, u]) - tol):
+                            robot = True
             if robot:
+                # runs of segment pixels along each row, as long as the run's piece stays
+                # out of the padded robot in every pixel of the run
                 for v in range(v0, v1):
-                    for u in range(u0, u1):
-                        if free[v, u] < end[v, u]:
-                            if n == cap:
-                                cap *= 2
-                                grown = np.empty((cap, 6), dtype=np.float64)
-                                grown[:n] = out[:n]
-                                out = grown
-                            out[n, 0] = u
-                            out[n, 1] = u
-                            out[n, 2] = v
-                            out[n, 3] = v
-                            out[n, 4] = free[v, u]
-                            out[n, 5] = end[v, u]
-                            n += 1
+                    u = u0
+                    while u < u1:
+                        if not free[v, u] < end[v, u]:
+                            u += 1
+                            continue
+                        ra = u
+                        rlo = np.float64(free[v, u])
+                        rhi = np.float64(end[v, u])
+                        u += 1
+                        while u < u1 and free[v, u] < end[v, u]:
+                            nlo = min(rlo, np.float64(free[v, u]))
+                            nhi = max(rhi, np.float64(end[v, u]))
+                            clear = True
+                            for w in range(ra, u + 1):
+                                if covered[v, w] and not (
+                                    nhi <= np.float64(front[v, w]) + tol or nlo >= np.float64(back[v, w]) - tol
+                                ):
+                                    clear = False
+                                    break
+                            if not clear:
+                                break
+                            rlo = nlo
+                            rhi = nhi
+                            u += 1
+                        if n == cap:
+                            cap *= 2
+                            grown = np.empty((cap, 6), dtype=np.float64)
+                            grown[:n] = out[:n]
+                            out = grown
+                        out[n, 0] = ra
+                        out[n, 1] = u - 1
+                        out[n, 2] = v
+                        out[n, 3] = v
+                        out[n, 4] = rlo
+                        out[n, 5] = rhi
+                        n += 1
             else:
                 zmin = np.inf
                 zmax = -np.inf
@@ -288,10 +394,23 @@ def _tile_segments(free, end, covered, tile):  # pragma: no cover - compiled
     return out[:n]
 
 
-def tile_segments(free: ArrayF32, end: ArrayF32, covered: np.ndarray, tile: int) -> np.ndarray:
+def tile_segments(
+    free: ArrayF32,
+    end: ArrayF32,
+    covered: np.ndarray,
+    tile: int,
+    front: ArrayF32 | None = None,
+    back: ArrayF32 | None = None,
+    tol: float = 0.0,
+) -> np.ndarray:
     """(N, 6) initial pieces of one camera: pixel rectangle (u0, u1, v0, v1), inclusive
-    pixel indices, and depth range (z0, z1) [m] (see :func:`_tile_segments`)."""
-    return _tile_segments(free, end, covered, int(tile))
+    pixel indices, and depth range (z0, z1) [m] (see :func:`_tile_segments`). ``front``
+    and ``back`` bound the padded robot's depth in its ``covered`` pixels; without them,
+    every tile with a covered pixel is split into pixels."""
+    if front is None or back is None:
+        front = np.full(free.shape, -np.inf, dtype=np.float32)
+        back = np.full(free.shape, np.inf, dtype=np.float32)
+    return _tile_segments(free, end, covered, front, back, float(tol), int(tile))
 
 
 @nb.njit(cache=True, nogil=True)

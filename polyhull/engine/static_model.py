@@ -42,7 +42,6 @@ from pathlib import Path
 
 import fcl
 import manifold3d as m3
-import numba as nb
 import numpy as np
 from scipy import ndimage
 
@@ -430,15 +429,6 @@ def remove_sheets(
     return check_manifold(out, "static region without its noise sheets"), removed
 
 
-@nb.njit(cache=True, nogil=True)
-def _mark_boxes(occ, a, b):  # pragma: no cover - compiled
-    for i in range(a.shape[0]):
-        for x in range(a[i, 0], b[i, 0] + 1):
-            for y in range(a[i, 1], b[i, 1] + 1):
-                for z in range(a[i, 2], b[i, 2] + 1):
-                    occ[x, y, z] = 1
-
-
 def _region_voxels(region: m3.Manifold, lo: ArrayF64, hi: ArrayF64, pitch: float) -> np.ndarray:
     """Voxels (over the box [lo, hi], side ``pitch``) holding a sample of the region's
     surface (sampled finer than half the pitch) or whose centre is enclosed by it."""
@@ -500,19 +490,6 @@ class TouchGrid:
         table = np.zeros(tuple(np.asarray(occ.shape) + 1), dtype=np.int32)
         table[1:, 1:, 1:] = occ.astype(np.int32).cumsum(0).cumsum(1).cumsum(2)
         return cls(lo, float(pitch), table)
-
-    @classmethod
-    def of_boxes(cls, lo: ArrayF64, hi: ArrayF64, grid_lo: ArrayF64, grid_hi: ArrayF64, pitch: float) -> TouchGrid:
-        """Voxels meeting any of the boxes [lo, hi] (N, 3) [m] over the grid's box."""
-        origin = np.asarray(grid_lo, dtype=np.float64)
-        shape = np.maximum(np.ceil((np.asarray(grid_hi) - origin) / pitch).astype(np.int64), 1)
-        occ = np.zeros(tuple(shape), dtype=np.int64)
-        a = np.clip(np.floor((lo - origin) / pitch).astype(np.int64), 0, shape - 1)
-        b = np.clip(np.floor((hi - origin) / pitch).astype(np.int64), 0, shape - 1)
-        _mark_boxes(occ, a, b)
-        table = np.zeros(tuple(shape + 1), dtype=np.int64)
-        table[1:, 1:, 1:] = (occ > 0).astype(np.int64).cumsum(0).cumsum(1).cumsum(2)
-        return cls(origin, float(pitch), table)
 
     def any_in(self, lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
         """(N,) whether any marked voxel meets each box [lo, hi] (N, 3) [m]."""
