@@ -324,6 +324,8 @@ class Monitor:
         self._history = {cam.name: _CameraHistory() for cam in self.cell.cameras}
         self._prev_lo: ArrayF64 | None = None
         self._prev_hi: ArrayF64 | None = None
+        self._seed_lo: ArrayF64 | None = None
+        self._seed_hi: ArrayF64 | None = None
         self._prev_stamp: float | None = None
         self.last_images: CycleImages | None = None
 
@@ -678,8 +680,8 @@ class Monitor:
         if (
             cell.reconstruction.shadow_memory
             and rasters
-            and self._prev_lo is not None
-            and len(self._prev_lo)
+            and self._seed_lo is not None
+            and len(self._seed_lo)
             and dt is not None
         ):
             memory = self._timed(
@@ -703,7 +705,10 @@ class Monitor:
         result: DynamicResult = self._timed(
             timings,
             "plausibility",
-            lambda: judge_dynamic(allp.vertices, vols, at_robot, ctx, lambda idx: _hexahedra_manifold(allp.vertices[idx])),
+            lambda: judge_dynamic(
+                allp.vertices, vols, at_robot, ctx, lambda idx: _hexahedra_manifold(allp.vertices[idx]),
+                memory=np.arange(len(allp)) >= len(pieces),
+            ),
         )
         kept = np.concatenate([allp.vertices[result.keep], result.sheet_boxes])
 
@@ -731,6 +736,8 @@ class Monitor:
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
         self._prev_lo, self._prev_hi = observed.min(axis=1), observed.max(axis=1)
+        seeds = _seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
+        self._seed_lo, self._seed_hi = seeds.min(axis=1), seeds.max(axis=1)
         self._prev_stamp = t
         self.last_images = CycleImages(
             free={c.name: f for c, f in zip(cell.cameras, free_imgs, strict=True) if f is not None},
@@ -750,10 +757,13 @@ class Monitor:
         stop = bool(self._latched)
         timings["total"] = (time.perf_counter() - t_start) * 1e3
 
+        gap_boxes = np.concatenate(gap_parts) if gap_parts else np.zeros((0, 7))
+        gap_verts = piece_vertices(gap_boxes, self._stack)
+        gaps = _gaps_removed(gap_boxes, gap_verts, self._stack)
         geometry = _CycleGeometry(
             static=self.static,
             zone=self._zone,
-            pieces=allp.vertices,
+            pieces=np.concatenate([allp.vertices, gap_verts]),
             kept=kept,
             n_kept=int(result.keep.sum()),
             robot_body=lambda: _robot_body(padded_world),
@@ -763,7 +773,7 @@ class Monitor:
         return Verdict(
             stamp=t,
             q=np.asarray(qv, dtype=np.float64),
-            removed=self.static.removed + _gaps_removed(gap_parts, self._stack) + result.removed,
+            removed=self.static.removed + gaps + result.removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,
@@ -802,16 +812,27 @@ class Monitor:
         run_carve: Callable[..., tuple[PieceSet, bool]],
         reach: float,
     ) -> PieceSet:
-        """Pieces of ``C n M`` within ``reach`` [m] of the previous dynamic components.
+        """Pieces of ``C n M`` within ``reach`` [m] of the previous cycle's seeds.
+
+        The seeds are what the previous cycle saw as a target (see
+        :class:`polyhull.engine.dynamic_rules.DynamicResult`), and of it only the part
+        within ``SEED_DEPTH`` behind the surface its pixels measured: not the whole previous
+        region. Grown from R3_static, from sensor noise spared next to the robot, from the
+        unseen shadow behind a person or from the memory itself, the memory would fill the
+        robot's shadow for good and hold the robot at a standstill. A person wholly inside
+        M is followed for one cycle; with cameras around the cell M is the robot's own
+        narrow shadow, and a person's visible remainder seeds the memory again every cycle.
+        A person who was never seen (hidden in a static or a person's shadow) and steps
+        from there into M is not followed.
 
         Behind the padded robot (its back depth) in every robot-covered pixel, the segment
         to the static free depth holds C n M (what the robot hides, not freed by this
-        camera); only pixels whose rays meet the previous components' boxes grown by
-        ``reach`` are built, then carved like any piece, and kept where they meet the boxes.
+        camera); only pixels whose rays meet the seeds' boxes grown by ``reach`` are built,
+        then carved like any piece, and kept where they meet the boxes.
         """
-        assert self._prev_lo is not None and self._prev_hi is not None
-        lo = self._prev_lo - reach
-        hi = self._prev_hi + reach
+        assert self._seed_lo is not None and self._seed_hi is not None
+        lo = self._seed_lo - reach
+        hi = self._seed_hi + reach
         parts = []
         ends: list[np.ndarray | None] = []
         mem_free: list[np.ndarray | None] = []
@@ -899,13 +920,35 @@ read). Memory pieces start behind the padded robot, so their distance is about t
 padding whatever their size; finer pieces only cost time."""
 
 
-def _gaps_removed(parts: list[np.ndarray], stack: CameraStack) -> tuple[RemovedComponent, ...]:
-    """The segments the small_gaps rule freed this cycle, as one reported removal."""
-    if not parts:
+SEED_DEPTH = 0.6
+"""Depth [m] of a person's body behind the surface their pixels measure (the shadow
+memory's seeds are the seen parts of the kept pieces, not the shadow behind them)."""
+
+
+def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: CameraStack) -> ArrayF64:
+    """(S, 8, 3) the parts of pieces (boxes (N, 7)) within ``SEED_DEPTH`` behind the
+    surface their pixels measured: the depth range ``[max(z0, f_min), min(z1, f_max +
+    SEED_DEPTH)]`` with ``f`` the camera's free depth over the piece's pixels. Pieces of a
+    camera without a frame, or entirely deeper, give nothing."""
+    out = []
+    for b in boxes:
+        free = free_imgs[int(b[0])]
+        if free is None:
+            continue
+        window = free[int(b[3]) : int(b[4]) + 1, int(b[1]) : int(b[2]) + 1]
+        z0 = max(b[5], float(window.min()))
+        z1 = min(b[6], float(window.max()) + SEED_DEPTH)
+        if z0 < z1:
+            out.append([*b[:5], z0, z1])
+    return piece_vertices(np.asarray(out, dtype=np.float64).reshape(-1, 7), stack)
+
+
+def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple[RemovedComponent, ...]:
+    """The pixel segments (boxes (N, 7), vertices (N, 8, 3)) the small_gaps rule freed this
+    cycle, as one reported removal (they are part of R2, before the rules)."""
+    if not len(boxes):
         return ()
-    boxes = np.concatenate(parts)
     vols = piece_volumes(boxes, stack)
-    verts = piece_vertices(boxes, stack)
     centroid = (verts.mean(axis=1) * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
     return (RemovedComponent("small_gaps", float(vols.sum()), centroid, _LazyHexahedra(verts)),)
 

@@ -149,6 +149,9 @@ class DynamicResult:
         removed: The removed components with their rule (mesh built when read).
         kept_lo: (K, 3) bounding boxes of the kept components (the next cycle's history);
             ``kept_hi`` their maxima.
+        seeds: (N,) the kept pieces the next cycle's shadow memory grows from: pieces (not
+            of the memory, not inside a shell or a noise sheet) of components that pass
+            too_small on their own volume and stand on a surface or touch the boundary.
     """
 
     keep: np.ndarray
@@ -157,6 +160,7 @@ class DynamicResult:
     removed: tuple[RemovedComponent, ...]
     kept_lo: ArrayF64
     kept_hi: ArrayF64
+    seeds: np.ndarray
 
 
 def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF64:
@@ -231,13 +235,16 @@ def judge_dynamic(
     at_robot: np.ndarray,
     ctx: DynamicContext,
     make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
+    memory: np.ndarray | None = None,
 ) -> DynamicResult:
     """Apply the dynamic rules to pieces with vertices (N, 8, 3) [m], volumes (N,) [m^3]
-    and ``at_robot`` (N,) (the piece ends at the robot's shadow start)."""
+    and ``at_robot`` (N,) (the piece ends at the robot's shadow start). ``memory`` (N,)
+    marks the shadow memory's pieces: they are judged like the others but add no sheet
+    boxes (they are the robot's hidden space, not something seen standing there)."""
     n = vertices.shape[0]
     if n == 0:
         z = np.zeros((0, 3))
-        return DynamicResult(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros((0, 8, 3)), (), z, z)
+        return DynamicResult(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros((0, 8, 3)), (), z, z, np.zeros(0, bool))
     p = ctx.params
     eps = p.support_eps
     lo = vertices.min(axis=1)
@@ -273,8 +280,9 @@ def judge_dynamic(
     # a noise sheet) goes unless a piece of its component outside every shell lies within
     # ``floor_shell_margin`` of it (a person reaching into the shell, standing on the floor).
     shell_cut = np.zeros(n, dtype=bool)
+    inside = np.zeros(n, dtype=bool)
     if p.too_thin:
-        inside = _in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1)
+        inside = np.asarray(_in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1))
         inside |= _in_sheets(vertices, ctx)
         shell_cut = inside & ~(boundary[labels] & p.keep_at_boundary)
         if shell_cut.any() and (~inside).any():
@@ -287,6 +295,7 @@ def judge_dynamic(
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
         small = rest < p.min_volume
         fires["too_small"] = small & ~spared_shape
+    on_surface = np.zeros(K, dtype=bool)  # reaches a sheet (the floor, an obstacle face)
     if p.flying:
         supported = touch_m.copy()
         for sh in ctx.sheets:
@@ -299,6 +308,7 @@ def judge_dynamic(
             ok = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= -eps)
             ok &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
             supported[labels[idx[ok]]] = True
+            on_surface[labels[idx[ok]]] = True
         fires["flying"] = ~supported & ~spared_shape
     else:
         supported = np.ones(K, dtype=bool)
@@ -341,8 +351,15 @@ def judge_dynamic(
     # touch R3_static or the boundary) keep the sheet under them: a person does; noise
     # spared next to a static blind region does not need a floor under it.
     own = keep & ~(small | ~supported)[labels]
+    if memory is not None:
+        own &= ~memory
     sheet_boxes = _sheets_under(vertices[own], labels[own], np.unique(labels[own]), ctx)
-    return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k])
+    # Seeds of the next cycle's shadow memory: what was seen as a target, standing on a
+    # surface or coming in over the boundary, not what M alone or R3_static spared.
+    # Pieces inside a shell or a noise sheet are left out: feet in the floor's sheet lie
+    # within the sheet margin of the legs that seed.
+    seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
+    return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k], seeds)
 
 
 def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx: DynamicContext) -> ArrayF64:
