@@ -38,14 +38,22 @@ from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, winding_numbers
 from .engine.boxes import any_overlap
 from .engine.dynamic_rules import DynamicContext, DynamicResult, judge_dynamic
-from .engine.pieces import CameraStack, CarveParams, PieceSet, carve, piece_vertices, piece_volumes
+from .engine.pieces import (
+    CameraStack,
+    CarveParams,
+    ImageStack,
+    PieceSet,
+    PyramidStack,
+    carve,
+    piece_vertices,
+    piece_volumes,
+)
 from .engine.pixels import (
-    FreePyramid,
     classify_frame,
-    free_pyramid,
     memory_segments,
     small_gaps,
     tile_segments,
+    window_range,
 )
 from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
@@ -584,8 +592,9 @@ class Monitor:
         t0 = time.perf_counter()
         free_imgs: list[np.ndarray | None] = []
         end_imgs: list[np.ndarray | None] = []
-        pyramids: list[FreePyramid | None] = []
         active = np.zeros(len(cell.cameras), dtype=bool)
+        free_stack = ImageStack(self._stack, fill=None)
+        end_stack = ImageStack(self._stack, fill=None)
         init_parts = []
         gap_parts: list[np.ndarray] = []
         unexplained = 0
@@ -606,7 +615,7 @@ class Monitor:
                 depth if depth is not None else self._blind[cam.name],
                 s.reference, s.lower, s.upper, s.free_static, shadow,
                 near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
-                is_color=cam.kind == "color",
+                is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
             )
             if cell.plausibility.small_gaps and depth is not None:
                 gap = small_gaps(
@@ -631,10 +640,8 @@ class Monitor:
             if len(tiles):
                 init_parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
             if depth is None:
-                pyramids.append(None)
                 continue
             active[i] = True
-            pyramids.append(free_pyramid(cls.free))
             hist = self._history[cam.name]
             if hist.invalid_share is None and cls.invalid_share > safety.invalid_jump:
                 faults.append(
@@ -661,16 +668,15 @@ class Monitor:
         # A camera without a usable frame frees nothing: its whole image becomes pieces. That
         # cycle stops the robot anyway (the fault latches), so its pieces are not split.
         params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
+        pyramid_stack = PyramidStack.build(free_stack, active)
 
-        def run_carve(
-            init: np.ndarray, frees: list[np.ndarray | None], ends: list[np.ndarray | None], coarse: bool = False
-        ) -> tuple[PieceSet, bool]:
+        def run_carve(init: np.ndarray, frees: ImageStack, ends: ImageStack, coarse: bool = False) -> tuple[PieceSet, bool]:
             p = params
             if coarse:
                 p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
-            return carve(init, self._stack, active, pyramids, frees, ends, spheres, zlo, zhi, k, p)
+            return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p)
 
-        pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_imgs, end_imgs))
+        pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_stack, end_stack))
         if overflow:
             warnings.append(f"pieces: the budget of {self._carve.max_pieces} pieces was reached; undecided pieces kept whole")
 
@@ -685,7 +691,7 @@ class Monitor:
             and dt is not None
         ):
             memory = self._timed(
-                timings, "memory", lambda: self._memory(rasters, free_imgs, run_carve, safety.human_speed * dt + 1e-3)
+                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, safety.human_speed * dt + 1e-3)
             )
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)
@@ -768,7 +774,7 @@ class Monitor:
             n_kept=int(result.keep.sum()),
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
-            full_pieces=lambda: self._full_pieces(usable, free_imgs, run_carve),
+            full_pieces=lambda: self._full_pieces(free_stack, run_carve),
         )
         return Verdict(
             stamp=t,
@@ -809,6 +815,7 @@ class Monitor:
         self,
         rasters: Mapping[str, RobotRaster],
         free_imgs: list[np.ndarray | None],
+        free_stack: ImageStack,
         run_carve: Callable[..., tuple[PieceSet, bool]],
         reach: float,
     ) -> PieceSet:
@@ -834,8 +841,8 @@ class Monitor:
         lo = self._seed_lo - reach
         hi = self._seed_hi + reach
         parts = []
-        ends: list[np.ndarray | None] = []
-        mem_free: list[np.ndarray | None] = []
+        mem_free = ImageStack(self._stack, fill=None)  # every camera's image is written below
+        mem_end = ImageStack(self._stack, fill=None)
         corners = np.stack(
             [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
             axis=1,
@@ -844,10 +851,9 @@ class Monitor:
             raster = rasters.get(cam.name)
             free = free_imgs[i]
             if raster is None or free is None or not raster.covered.any():
-                ends.append(None)
-                mem_free.append(None)
+                mem_free.image(i).fill(0.0)  # no segment
+                mem_end.image(i).fill(0.0)
                 continue
-            H, W = cam.shape
             rows = np.nonzero(raster.covered.any(axis=1))[0]
             cols = np.nonzero(raster.covered.any(axis=0))[0]
             s_min = float(raster.back[raster.covered].min())
@@ -864,42 +870,34 @@ class Monitor:
             sel = np.nonzero(ok)[0]
             rects = np.column_stack([pu0[sel], pu1[sel], pv0[sel], pv1[sel]]).astype(np.int64)
             zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
-            f, e = memory_segments(raster.covered, raster.back, free, s.free_static, rects, zr)
-            mem_free.append(f)
-            ends.append(e)
+            f, e = memory_segments(
+                raster.covered, raster.back, free, s.free_static, rects, zr, mem_free.image(i), mem_end.image(i)
+            )
             tiles = tile_segments(f, e, raster.covered, self.cell.reconstruction.tile, raster.front, raster.back, self._tile_tol)
             if len(tiles):
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
             return PieceSet.empty()
         # carved by the cameras' free depth; split along the memory segments
-        pieces, _ = run_carve(np.concatenate(parts), mem_free, ends, True)
+        pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
         if not len(pieces):
             return pieces
         return pieces.select(any_overlap(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1), lo, hi))
 
-    def _full_pieces(
-        self,
-        usable: Mapping[str, np.ndarray],
-        free_imgs: list[np.ndarray | None],
-        run_carve: Callable[..., tuple[PieceSet, bool]],
-    ) -> ArrayF64:
+    def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""
         parts = []
-        ends: list[np.ndarray | None] = []
+        ends = ImageStack(self._stack)
         for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
-            free = free_imgs[i]
-            if free is None:
-                ends.append(None)
-                continue
-            ends.append(s.free_static)
+            free = free_stack.image(i)
+            ends.image(i)[:] = s.free_static
             tiles = tile_segments(free, s.free_static, np.zeros(cam.shape, dtype=bool), self.cell.reconstruction.tile)
             if len(tiles):
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
             return np.zeros((0, 8, 3))
         # C is drawn and measured, never used for the distance: coarse pieces (a superset)
-        pieces, _ = run_carve(np.concatenate(parts), free_imgs, ends, True)
+        pieces, _ = run_carve(np.concatenate(parts), free_stack, ends, True)
         return pieces.vertices
 
     def _occlusion(self, padded_world: list[ArrayF64]) -> m3.Manifold:
@@ -931,16 +929,18 @@ def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: Came
     SEED_DEPTH)]`` with ``f`` the camera's free depth over the piece's pixels. Pieces of a
     camera without a frame, or entirely deeper, give nothing."""
     out = []
-    for b in boxes:
-        free = free_imgs[int(b[0])]
+    cams = boxes[:, 0].astype(np.int64)
+    for c in np.unique(cams):
+        free = free_imgs[int(c)]
         if free is None:
             continue
-        window = free[int(b[3]) : int(b[4]) + 1, int(b[1]) : int(b[2]) + 1]
-        z0 = max(b[5], float(window.min()))
-        z1 = min(b[6], float(window.max()) + SEED_DEPTH)
-        if z0 < z1:
-            out.append([*b[:5], z0, z1])
-    return piece_vertices(np.asarray(out, dtype=np.float64).reshape(-1, 7), stack)
+        b = boxes[cams == c].copy()
+        f_lo, f_hi = window_range(free, b[:, 1:5].astype(np.int64))
+        b[:, 5] = np.maximum(b[:, 5], f_lo)
+        b[:, 6] = np.minimum(b[:, 6], f_hi + SEED_DEPTH)
+        out.append(b[b[:, 5] < b[:, 6]])
+    kept = np.concatenate(out) if out else np.zeros((0, 7))
+    return piece_vertices(kept, stack)
 
 
 def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple[RemovedComponent, ...]:
@@ -1017,11 +1017,8 @@ def _at_robot(boxes: np.ndarray, rasters: list[RobotRaster | None]) -> np.ndarra
         sel = np.nonzero(boxes[:, 0] == i)[0]
         if len(sel) == 0:
             continue
-        sat = np.zeros((r.covered.shape[0] + 1, r.covered.shape[1] + 1), dtype=np.int64)
-        sat[1:, 1:] = r.covered.cumsum(0).cumsum(1)
-        b = boxes[sel].astype(np.int64)
-        u0, u1, v0, v1 = b[:, 1], b[:, 2] + 1, b[:, 3], b[:, 4] + 1
-        out[sel] = (sat[v1, u1] - sat[v0, u1] - sat[v1, u0] + sat[v0, u0]) > 0
+        _, covered_max = window_range(r.covered.view(np.uint8), boxes[sel, 1:5].astype(np.int64))
+        out[sel] = covered_max > 0
     return out
 
 

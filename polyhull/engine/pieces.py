@@ -30,15 +30,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
 
 from ..camera import Camera
 from ..typed import ArrayF64
-from .pixels import FreePyramid
+from .pixels import build_pyramid, pyramid_layout
 
-__all__ = ["CameraStack", "PieceSet", "carve", "piece_vertices", "piece_volumes"]
+__all__ = ["CameraStack", "ImageStack", "PieceSet", "PyramidStack", "carve", "piece_vertices", "piece_volumes"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -392,13 +393,85 @@ class CarveParams:
     max_pieces: int = 200_000
 
 
+class PyramidStack(NamedTuple):
+    """Every camera's free-depth pyramids in one flat array (built once per cycle).
+
+    Attributes:
+        mins: All cameras' min pyramids, one after the other.
+        maxs: The max pyramids, likewise.
+        offsets: (n, L) where camera i's level l starts in ``mins``.
+        shapes: (n, L, 2) the (rows, cols) of each level.
+        levels: (n,) the levels of each camera (0 without a frame).
+    """
+
+    mins: np.ndarray
+    maxs: np.ndarray
+    offsets: np.ndarray
+    shapes: np.ndarray
+    levels: np.ndarray
+
+    @classmethod
+    def build(cls, free: ImageStack, active: np.ndarray) -> PyramidStack:
+        """The pyramids of the active cameras' free depth images, written in place."""
+        n = len(active)
+        layouts = [pyramid_layout(*free.shape(i)) for i in range(n)]
+        levels = np.array([len(o) if active[i] else 0 for i, (o, _) in enumerate(layouts)], dtype=np.int64)
+        L = max(int(levels.max(initial=0)), 1)
+        offsets = np.zeros((n, L), dtype=np.int64)
+        shapes = np.ones((n, L, 2), dtype=np.int64)
+        base = 0
+        sizes = []
+        for i, (o, shp) in enumerate(layouts):
+            if not active[i]:
+                sizes.append(0)
+                continue
+            offsets[i, : len(o)] = o + base
+            shapes[i, : len(o)] = shp
+            size = int((shp[:, 0] * shp[:, 1]).sum())
+            sizes.append(size)
+            base += size
+        mins = np.empty(max(base, 1), dtype=np.float32)
+        maxs = np.empty(max(base, 1), dtype=np.float32)
+        for i, (o, shp) in enumerate(layouts):
+            if active[i]:
+                start = int(offsets[i, 0])
+                build_pyramid(free.image(i), mins[start : start + sizes[i]], maxs[start : start + sizes[i]], o, shp)
+        return cls(mins, maxs, offsets, shapes, levels)
+
+
+class ImageStack:
+    """Per-camera images in one flat float32 buffer, each camera's image a view of it.
+
+    The engine writes the cycle's free depth and segment ends straight into these views,
+    so carving reads every camera's image without a copy.
+    """
+
+    def __init__(self, stack: CameraStack, fill: float | None = 0.0) -> None:
+        sizes = stack.size[:, 0] * stack.size[:, 1]
+        self.offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        n = int(sizes.sum())
+        # fill None: every image is written before it is read
+        self.flat = np.empty(n, dtype=np.float32) if fill is None else np.full(n, fill, dtype=np.float32)
+        self._shapes = [(int(h), int(w)) for w, h in stack.size]
+
+    def shape(self, i: int) -> tuple[int, int]:
+        """Camera ``i``'s image shape (H, W)."""
+        return self._shapes[i]
+
+    def image(self, i: int) -> np.ndarray:
+        """Camera ``i``'s (H, W) image (a view of :attr:`flat`)."""
+        H, W = self._shapes[i]
+        o = int(self.offsets[i])
+        return self.flat[o : o + H * W].reshape(H, W)
+
+
 def carve(
     initial: ArrayF64,
     stack: CameraStack,
     active: np.ndarray,
-    pyramids: Sequence[FreePyramid | None],
-    free_images: Sequence[np.ndarray | None],
-    end_images: Sequence[np.ndarray | None],
+    pyramids: PyramidStack,
+    free: ImageStack,
+    end: ImageStack,
     robot_spheres: ArrayF64,
     zone_lo: ArrayF64,
     zone_hi: ArrayF64,
@@ -412,43 +485,12 @@ def carve(
     """
     if initial.shape[0] == 0:
         return PieceSet.empty(), False
-    n = len(pyramids)
-    H_max = 0
-    levels = [0 if p is None else len(p.offsets) for p in pyramids]
-    L = max(max(levels), 1)
-    pyr_off = np.zeros((n, L), dtype=np.int64)
-    pyr_shape = np.ones((n, L, 2), dtype=np.int64)
-    mins_parts, maxs_parts, free_parts, end_parts = [], [], [], []
-    img_off = np.zeros(n, dtype=np.int64)
-    base = 0
-    ibase = 0
-    for i, p in enumerate(pyramids):
-        W, H = int(stack.size[i, 0]), int(stack.size[i, 1])
-        H_max = max(H_max, H)
-        img_off[i] = ibase
-        f = free_images[i]
-        e = end_images[i]
-        if f is None or e is None:
-            f = np.zeros((H, W), dtype=np.float32)
-            e = np.zeros((H, W), dtype=np.float32)
-        free_parts.append(np.ascontiguousarray(f, dtype=np.float32).ravel())
-        end_parts.append(np.ascontiguousarray(e, dtype=np.float32).ravel())
-        ibase += H * W
-        if p is None:
-            continue
-        pyr_off[i, : len(p.offsets)] = p.offsets + base
-        pyr_shape[i, : len(p.offsets)] = p.shapes
-        mins_parts.append(p.mins)
-        maxs_parts.append(p.maxs)
-        base += len(p.mins)
-    mins = np.concatenate(mins_parts) if mins_parts else np.zeros(1, dtype=np.float32)
-    maxs = np.concatenate(maxs_parts) if maxs_parts else np.zeros(1, dtype=np.float32)
     boxes, overflow = _carve(
         np.ascontiguousarray(initial, dtype=np.float64),
         stack.R_cw, stack.t_cw, stack.R_wc, stack.t_wc, stack.intr, stack.size, stack.near,
         np.asarray(active, dtype=np.bool_),
-        mins, maxs, pyr_off, pyr_shape, np.asarray(levels, dtype=np.int64),
-        np.concatenate(free_parts), np.concatenate(end_parts), img_off,
+        pyramids.mins, pyramids.maxs, pyramids.offsets, pyramids.shapes, pyramids.levels,
+        free.flat, end.flat, free.offsets,
         np.ascontiguousarray(robot_spheres, dtype=np.float64).reshape(-1, 4),
         np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),
         int(k_of_n), float(params.alpha), float(params.size_min), float(params.size_max),

@@ -28,11 +28,12 @@ from ..typed import ArrayF32
 __all__ = [
     "PixelClasses",
     "classify_frame",
-    "FreePyramid",
-    "free_pyramid",
+    "pyramid_layout",
+    "build_pyramid",
     "tile_segments",
     "memory_segments",
     "small_gaps",
+    "window_range",
 ]
 
 
@@ -128,6 +129,8 @@ def classify_frame(
     tau_a: float,
     tau_min: float,
     is_color: bool,
+    out_free: ArrayF32 | None = None,
+    out_end: ArrayF32 | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -143,10 +146,14 @@ def classify_frame(
         tau_a: ``tolerance_sigmas * noise``: tau(z) = max(tau_a z^2, tau_min) [m].
         tau_min: Floor of tau [m].
         is_color: Binary-depth (colour) camera.
+        out_free: (H, W) float32 array to write the free depth into (a new one if None).
+        out_end: (H, W) float32 array to write the segment ends into (a new one if None).
     """
     H, W = free_static.shape
-    out_free = np.empty((H, W), dtype=np.float32)
-    out_end = np.empty((H, W), dtype=np.float32)
+    if out_free is None:
+        out_free = np.empty((H, W), dtype=np.float32)
+    if out_end is None:
+        out_end = np.empty((H, W), dtype=np.float32)
     out_invalid = np.empty((H, W), dtype=np.bool_)
     n_seg, n_invalid, n_far, n_seen = _classify(
         depth, reference, lower, upper, free_static, shadow_start,
@@ -221,20 +228,32 @@ def small_gaps(
     return small[labels]
 
 
-class FreePyramid(NamedTuple):
-    """Min and max pyramids of a free depth image, flattened level after level.
+@nb.njit(cache=True, nogil=True)
+def _window_range(img, rects, lo, hi):  # pragma: no cover - compiled
+    for i in range(rects.shape[0]):
+        a = np.inf
+        b = -np.inf
+        for v in range(rects[i, 2], rects[i, 3] + 1):
+            for u in range(rects[i, 0], rects[i, 1] + 1):
+                x = np.float64(img[v, u])
+                a = min(a, x)
+                b = max(b, x)
+        lo[i] = a
+        hi[i] = b
 
-    Level l has cells of 2^l x 2^l pixels; ``offsets[l]`` is where it starts in ``mins``
-    and ``maxs``, ``shapes[l]`` its (rows, cols).
-    """
 
-    mins: ArrayF32
-    maxs: ArrayF32
-    offsets: np.ndarray  # (L,) int64
-    shapes: np.ndarray  # (L, 2) int64
+def window_range(img: np.ndarray, rects: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(min, max) of ``img`` over each pixel rectangle ``rects`` (N, 4): u0, u1, v0, v1
+    (inclusive, inside the image)."""
+    lo = np.empty(len(rects))
+    hi = np.empty(len(rects))
+    _window_range(img, np.ascontiguousarray(rects, dtype=np.int64), lo, hi)
+    return lo, hi
 
 
-def _pyramid_layout(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+def pyramid_layout(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (L,) and (rows, cols) shapes (L, 2) of the levels of an (H, W) image's
+    min/max pyramid, flattened level after level (level l has 2^l x 2^l pixel cells)."""
     shapes = [(H, W)]
     while shapes[-1][0] > 1 or shapes[-1][1] > 1:
         h, w = shapes[-1]
@@ -273,15 +292,10 @@ def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - com
                 maxs[o1 + r * w1 + c] = hi
 
 
-def free_pyramid(free: ArrayF32) -> FreePyramid:
-    """Min and max pyramids of an (H, W) free depth image (range queries for carving)."""
-    H, W = free.shape
-    offsets, shapes = _pyramid_layout(H, W)
-    total = int((shapes[:, 0] * shapes[:, 1]).sum())
-    mins = np.empty(total, dtype=np.float32)
-    maxs = np.empty(total, dtype=np.float32)
+def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray) -> None:
+    """Write the min and max pyramids of an (H, W) free depth image into ``mins`` and
+    ``maxs`` (flat, laid out by :func:`pyramid_layout`; range queries for carving)."""
     _build_pyramid(free, mins, maxs, offsets, shapes)
-    return FreePyramid(mins, maxs, offsets, shapes)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -441,6 +455,8 @@ def memory_segments(
     free_static: ArrayF32,
     rects: np.ndarray,
     z_ranges: np.ndarray,
+    out_start: ArrayF32 | None = None,
+    out_end: ArrayF32 | None = None,
 ) -> tuple[ArrayF32, ArrayF32]:
     """Segments of the robot's shadow near given boxes, for the shadow memory.
 
@@ -451,11 +467,14 @@ def memory_segments(
     range. The robot's own (padded) volume is not part of the region.
 
     Returns:
-        (start, end) images [m]; no segment where ``start >= end``.
+        (start, end) images [m]; no segment where ``start >= end``. They are written into
+        ``out_start`` and ``out_end`` when given (filled here with +inf and -inf).
     """
     H, W = covered.shape
-    out_f = np.full((H, W), np.inf, dtype=np.float32)
-    out_e = np.full((H, W), -np.inf, dtype=np.float32)
+    out_f = np.empty((H, W), dtype=np.float32) if out_start is None else out_start
+    out_e = np.empty((H, W), dtype=np.float32) if out_end is None else out_end
+    out_f.fill(np.inf)
+    out_e.fill(-np.inf)
     if len(rects):
         _memory(covered, robot_back, free, free_static, np.ascontiguousarray(rects, dtype=np.int64),
                 np.ascontiguousarray(z_ranges, dtype=np.float64), out_f, out_e)

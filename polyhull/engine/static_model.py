@@ -32,6 +32,7 @@ Fused (:class:`StaticModel`):
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -228,37 +229,45 @@ class Sheet:
     def to_local(self) -> np.ndarray:
         """(3, 4) rigid transform world -> local frame, where the face is ``z = 0`` with
         free space at ``z > 0`` and the face's rectangle is ``lo <= (x, y) <= hi``."""
-        a, b = (i for i in range(3) if i != self.axis)
-        M = np.zeros((3, 4))
-        M[0, a] = 1.0
-        M[1, b] = 1.0
-        M[2, self.axis] = float(self.sign)
-        M[2, 3] = -float(self.sign) * self.level
-        if np.linalg.det(M[:, :3]) < 0:  # keep it a rotation: mirror x and y instead
-            M[0, a] = 0.0
-            M[0, b] = 1.0
-            M[1, a] = 1.0
-            M[1, b] = 0.0
-        return M
+        return _sheet_frame(self)[0].copy()
 
     def world_box(self, pad: float = 0.0) -> tuple[ArrayF64, ArrayF64]:
         """World bounds (lo, hi) of the sheet's slab, grown by ``pad`` [m] on every side."""
-        (x0, y0), (x1, y1) = self.local_box()
-        W = _to_world(self.to_local())
-        corners = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (0.0, self.height)])
-        pts = corners @ W[:, :3].T + W[:, 3]
-        return pts.min(axis=0) - pad, pts.max(axis=0) + pad
+        _, lo, hi, _ = _sheet_frame(self)
+        return lo - pad, hi + pad
 
     def local_box(self) -> tuple[tuple[float, float], tuple[float, float]]:
         """The face's rectangle in the local frame's (x, y)."""
-        M = self.to_local()
-        a, b = (i for i in range(3) if i != self.axis)
-        lo = np.zeros(3)
-        hi = np.zeros(3)
-        lo[[a, b]] = self.lo
-        hi[[a, b]] = self.hi
-        p = np.stack([M[:2, :3] @ lo, M[:2, :3] @ hi])
-        return tuple(p.min(axis=0)), tuple(p.max(axis=0))  # type: ignore[return-value]
+        return _sheet_frame(self)[3]
+
+
+@functools.cache
+def _sheet_frame(sheet: Sheet) -> tuple[np.ndarray, ArrayF64, ArrayF64, tuple[tuple[float, float], tuple[float, float]]]:
+    """A sheet's world -> local transform, its slab's world bounds and its local rectangle
+    (computed once per sheet: the dynamic rules ask for them every cycle)."""
+    a, b = (i for i in range(3) if i != sheet.axis)
+    M = np.zeros((3, 4))
+    M[0, a] = 1.0
+    M[1, b] = 1.0
+    M[2, sheet.axis] = float(sheet.sign)
+    M[2, 3] = -float(sheet.sign) * sheet.level
+    if np.linalg.det(M[:, :3]) < 0:  # keep it a rotation: mirror x and y instead
+        M[0, a] = 0.0
+        M[0, b] = 1.0
+        M[1, a] = 1.0
+        M[1, b] = 0.0
+    lo3 = np.zeros(3)
+    hi3 = np.zeros(3)
+    lo3[[a, b]] = sheet.lo
+    hi3[[a, b]] = sheet.hi
+    p = np.stack([M[:2, :3] @ lo3, M[:2, :3] @ hi3])
+    (x0, y0), (x1, y1) = p.min(axis=0), p.max(axis=0)
+    W = _to_world(M)
+    corners = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (0.0, sheet.height)])
+    pts = corners @ W[:, :3].T + W[:, 3]
+    M.setflags(write=False)
+    box = ((float(x0), float(y0)), (float(x1), float(y1)))
+    return M, pts.min(axis=0), pts.max(axis=0), box
 
 
 def _is_box(obstacle: Obstacle) -> bool:
