@@ -27,8 +27,9 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 import manifold3d as m3
 import numpy as np
@@ -309,6 +310,11 @@ class Monitor:
         # to the protective separation distance.
         self._margin = self._padding * math.sqrt(3.0)
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
+        self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
+        self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
+        # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
+        # kernels release the GIL
+        self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
         if robot is not None:
             moving = _moving_links(robot)
             geometry = robot.link_geometry()
@@ -583,80 +589,44 @@ class Monitor:
             ).reshape(-1, 4)
         t0 = time.perf_counter()
         rasters: dict[str, RobotRaster] = {}
-        for cam in cell.cameras:
-            if padded_world:
-                rasters[cam.name] = rasterize_robot(cam, padded_world, self._padded)  # type: ignore[arg-type]
+        if padded_world:
+            done = self._pool.map(lambda cam: rasterize_robot(cam, padded_world, self._padded), cell.cameras)  # type: ignore[arg-type]
+            rasters = {cam.name: r for cam, r in zip(cell.cameras, done, strict=True)}
         timings["robot_raster"] = (time.perf_counter() - t0) * 1e3
 
-        # pixels
+        # pixels: every camera in one compiled pass, on the pool's threads
         t0 = time.perf_counter()
-        free_imgs: list[np.ndarray | None] = []
-        end_imgs: list[np.ndarray | None] = []
-        active = np.zeros(len(cell.cameras), dtype=bool)
         free_stack = ImageStack(self._stack, fill=None)
         end_stack = ImageStack(self._stack, fill=None)
-        init_parts = []
-        gap_parts: list[np.ndarray] = []
-        unexplained = 0
-        inf_img: dict[tuple[int, int], np.ndarray] = {}
-        for i, (cam, s) in enumerate(zip(cell.cameras, self.static.cameras, strict=True)):
-            depth = usable.get(cam.name)
-            raster = rasters.get(cam.name)
-            if raster is None:
-                key = cam.shape
-                if key not in inf_img:
-                    inf_img[key] = np.full(cam.shape, np.inf, dtype=np.float32)
-                shadow = inf_img[key]
-                covered = np.zeros(cam.shape, dtype=bool)
-            else:
-                shadow = raster.shadow_start
-                covered = raster.covered
-            cls = classify_frame(
-                depth if depth is not None else self._blind[cam.name],
-                s.reference, s.lower, s.upper, s.free_static, shadow,
-                near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
-                is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
+        results = list(
+            self._pool.map(
+                lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack), range(len(cell.cameras))
             )
-            if cell.plausibility.small_gaps and depth is not None:
-                gap = small_gaps(
-                    cls.free, cls.end, cls.invalid, s.free_static, cam.near,
-                    cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
-                )
-                if gap.any():
-                    v_idx, u_idx = np.nonzero(gap)
-                    gap_parts.append(
-                        np.column_stack(
-                            [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[gap], cls.end[gap]]
-                        )
-                    )
-                    cls.free[gap] = cls.end[gap]
-            free_imgs.append(cls.free)
-            end_imgs.append(cls.end)
-            unexplained += cls.unexplained
-            tiles = tile_segments(
-                cls.free, cls.end, covered, cell.reconstruction.tile,
-                None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
-            )
-            if len(tiles):
-                init_parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
-            if depth is None:
+        )
+        free_imgs: list[np.ndarray | None] = [free_stack.image(i) for i in range(len(cell.cameras))]
+        end_imgs: list[np.ndarray | None] = [end_stack.image(i) for i in range(len(cell.cameras))]
+        active = np.array([r.active for r in results], dtype=bool)
+        init_parts = [r.tiles for r in results if len(r.tiles)]
+        gap_parts = [r.gaps for r in results if len(r.gaps)]
+        unexplained = sum(r.unexplained for r in results)
+        for cam, r in zip(cell.cameras, results, strict=True):
+            if not r.active:
                 continue
-            active[i] = True
             hist = self._history[cam.name]
-            if hist.invalid_share is None and cls.invalid_share > safety.invalid_jump:
+            if hist.invalid_share is None and r.invalid_share > safety.invalid_jump:
                 faults.append(
-                    f"camera '{cam.name}': blind or masked: {cls.invalid_share:.1%} of the pixels that "
+                    f"camera '{cam.name}': blind or masked: {r.invalid_share:.1%} of the pixels that "
                     f"see the cell have no depth (> {safety.invalid_jump:.1%})"
                 )
-            elif hist.invalid_share is not None and cls.invalid_share - hist.invalid_share > safety.invalid_jump:
+            elif hist.invalid_share is not None and r.invalid_share - hist.invalid_share > safety.invalid_jump:
                 faults.append(
                     f"camera '{cam.name}': contamination or masking: invalid pixels "
-                    f"jumped from {hist.invalid_share:.1%} to {cls.invalid_share:.1%}"
+                    f"jumped from {hist.invalid_share:.1%} to {r.invalid_share:.1%}"
                 )
-            hist.invalid_share = cls.invalid_share
-            if cls.far_side_share > safety.background_mismatch:
+            hist.invalid_share = r.invalid_share
+            if r.far_side_share > safety.background_mismatch:
                 faults.append(
-                    f"camera '{cam.name}': moved or miscalibrated: {cls.far_side_share:.1%} "
+                    f"camera '{cam.name}': moved or miscalibrated: {r.far_side_share:.1%} "
                     f"of the background reads beyond the reference (> {safety.background_mismatch:.1%})"
                 )
         timings["pixels"] = (time.perf_counter() - t0) * 1e3
@@ -802,6 +772,54 @@ class Monitor:
         )
 
     # -- parts of the cycle ------------------------------------------------------------
+    def _camera_pixels(
+        self,
+        i: int,
+        usable: Mapping[str, np.ndarray],
+        rasters: Mapping[str, RobotRaster],
+        free_stack: ImageStack,
+        end_stack: ImageStack,
+    ) -> _CameraPixels:
+        """One camera's pixel classes, small gaps and initial tiles (thread-safe: it writes
+        only camera ``i``'s images)."""
+        cell = self.cell
+        cam, s = cell.cameras[i], self.static.cameras[i]
+        depth = usable.get(cam.name)
+        raster = rasters.get(cam.name)
+        if raster is None:
+            shadow = self._inf_img[cam.name]
+            covered = self._no_robot[cam.name]
+        else:
+            shadow = raster.shadow_start
+            covered = raster.covered
+        cls = classify_frame(
+            depth if depth is not None else self._blind[cam.name],
+            s.reference, s.lower, s.upper, s.free_static, shadow,
+            near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
+            is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
+        )
+        gaps = np.zeros((0, 7))
+        if cell.plausibility.small_gaps and depth is not None:
+            gap = small_gaps(
+                cls.free, cls.end, cls.invalid, s.free_static, cam.near,
+                cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
+            )
+            if gap.any():
+                v_idx, u_idx = np.nonzero(gap)
+                gaps = np.column_stack(
+                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[gap], cls.end[gap]]
+                )
+                cls.free[gap] = cls.end[gap]
+        tiles = tile_segments(
+            cls.free, cls.end, covered, cell.reconstruction.tile,
+            None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
+        )
+        if len(tiles):
+            tiles = np.column_stack([np.full(len(tiles), float(i)), tiles])
+        return _CameraPixels(
+            depth is not None, tiles, gaps, cls.unexplained, cls.invalid_share, cls.far_side_share
+        )
+
     def _static_contains(self, points: ArrayF64) -> np.ndarray:
         """Which points (P, 3) lie inside R3_static (touch grid first, then winding number)."""
         near = self.static.touch.any_in(points, points)
@@ -868,7 +886,13 @@ class Monitor:
                 pv1 = np.floor(uv[:, :, 1].max(axis=1) + 0.5)
             ok &= (pu1 >= cols[0]) & (pu0 <= cols[-1]) & (pv1 >= rows[0]) & (pv0 <= rows[-1])
             sel = np.nonzero(ok)[0]
-            rects = np.column_stack([pu0[sel], pu1[sel], pv0[sel], pv1[sel]]).astype(np.int64)
+            # only the robot's bounding rectangle can hold covered pixels
+            rects = np.column_stack(
+                [
+                    np.maximum(pu0[sel], cols[0]), np.minimum(pu1[sel], cols[-1]),
+                    np.maximum(pv0[sel], rows[0]), np.minimum(pv1[sel], rows[-1]),
+                ]
+            ).astype(np.int64)
             zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
             f, e = memory_segments(
                 raster.covered, raster.back, free, s.free_static, rects, zr, mem_free.image(i), mem_end.image(i)
@@ -951,6 +975,17 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
     vols = piece_volumes(boxes, stack)
     centroid = (verts.mean(axis=1) * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
     return (RemovedComponent("small_gaps", float(vols.sum()), centroid, _LazyHexahedra(verts)),)
+
+
+class _CameraPixels(NamedTuple):
+    """What one camera's pixel pass gives the cycle."""
+
+    active: bool  # the camera had a usable frame
+    tiles: np.ndarray  # (T, 7) initial pieces
+    gaps: np.ndarray  # (G, 7) pixel segments freed by small_gaps
+    unexplained: int
+    invalid_share: float
+    far_side_share: float
 
 
 class _LazyHexahedra:
