@@ -2,15 +2,21 @@
 
 The monitor and simulator are session-scoped (a Monitor takes ~0.5 s to build); tests that
 step a monitor must call ``monitor.reset()`` first, which the ``fresh_monitor`` fixture does.
+
+Hypothesis runs derandomized (the same examples on every machine and run), so a red test
+is reproducible and CI cannot turn red on a newly drawn example; ``HYPOTHESIS_PROFILE=explore``
+draws fresh examples to search for new counterexamples.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import manifold3d as m3
 import numpy as np
 import pytest
+from hypothesis import settings
 from scipy.spatial import cKDTree
 
 from polyhull.camera import Camera, Intrinsics, look_at_rotation
@@ -18,6 +24,10 @@ from polyhull.cell import Cell
 from polyhull.cellfile import load_cell
 from polyhull.monitor import Monitor
 from polyhull.simulator import Simulator
+
+settings.register_profile("ci", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"
