@@ -36,7 +36,8 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
 
 A kept component keeps the **noise sheet under it**: for every kept piece that crosses the
 top of a sheet (floor, obstacle face), a box over the piece's footprint on that face, grown
-by ``floor_shell_margin``, as thick as the sheet: a standing person's legs cross the top of
+by ``floor_shell_margin``, as high as C_static reaches in the sheet's slab there (its height
+map, measured at precompute): a standing person's legs cross the top of
 the floor's sheet, and their feet are in the sheet within that margin of the legs. Pieces
 wholly inside a sheet (noise in the band, a limb lying flatter than the sheet) do not
 extend it: ``floor_shell_height`` declares that nobody lies flatter.
@@ -54,16 +55,12 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import any_overlap, overlap_groups
-from .static_model import Sheet, TouchGrid, _to_world
+from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
 __all__ = ["TOUCH_EPS", "DynamicContext", "DynamicResult", "group_boxes", "judge_dynamic", "box_vertices"]
 
 TOUCH_EPS = 1e-4
 """Growth [m] of piece bounding boxes when grouping them into components."""
-
-
-SHEET_PITCH = 0.1
-"""Grid cell [m] on which the sheet boxes under kept pieces are merged (outward)."""
 
 
 def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
@@ -92,6 +89,8 @@ class DynamicContext:
         zone: The zone.
         params: The rules' switches and parameters.
         sheets: The judged sheets (floor, obstacle faces) with their thickness.
+        sheet_heights: Per sheet, the height map of C_static in its slab (the sheet boxes'
+            heights); empty: every box is as thick as its sheet.
         static_touch: Voxels within ``support_eps`` of R3_static.
         obstacle_boxes: (K, 2, 3) bounds of the obstacles (for too_thin).
         robot_shell_planes: Per padded robot piece at q, (F, 4) planes ``n . x <= d`` of its
@@ -116,9 +115,12 @@ class DynamicContext:
     previous_lo: ArrayF64 | None
     previous_hi: ArrayF64 | None
     dt: float | None
+    sheet_heights: tuple[np.ndarray, ...] = ()
 
     @classmethod
-    def of(cls, cell: Cell, sheets: Sequence[Sheet], static_touch: TouchGrid) -> DynamicContext:
+    def of(
+        cls, cell: Cell, sheets: Sequence[Sheet], static_touch: TouchGrid, sheet_heights: Sequence[np.ndarray] = ()
+    ) -> DynamicContext:
         """The parts that do not change between cycles."""
         boxes = np.array([o.mesh.bounds for o in cell.obstacles], dtype=np.float64).reshape(-1, 2, 3)
         areas = cell.plausibility.entry_areas
@@ -135,6 +137,7 @@ class DynamicContext:
             previous_lo=None,
             previous_hi=None,
             dt=None,
+            sheet_heights=tuple(sheet_heights),
         )
 
 
@@ -362,6 +365,10 @@ def judge_dynamic(
     return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k], seeds)
 
 
+SHEET_STEP = 0.03
+"""Height change [m] of the sheet's height map that starts a new sheet box along a run."""
+
+
 def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx: DynamicContext) -> ArrayF64:
     """Boxes of the sheets under the kept pieces (see the module docstring): for every kept
     piece that comes within a sheet's thickness of its face, the sheet over the piece's
@@ -372,7 +379,8 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
     eps = ctx.params.support_eps
     plo, phi = vertices.min(axis=1), vertices.max(axis=1)
     out = []
-    for sh in ctx.sheets:
+    heights: tuple[np.ndarray | None, ...] = ctx.sheet_heights or (None,) * len(ctx.sheets)
+    for sh, hmap in zip(ctx.sheets, heights, strict=True):
         idx = _near_sheet(plo, phi, sh, eps)
         if len(idx) == 0:
             continue
@@ -402,19 +410,33 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
         np.add.at(occ, (ia[:, 0], ib[:, 1]), -1)
         np.add.at(occ, (ib[:, 0], ib[:, 1]), 1)
         cells = occ.cumsum(0).cumsum(1)[:-1, :-1] > 0  # (nx, ny)
-        lo_list, hi_list = [], []
+        # runs of occupied cells along x, broken where the height map changes by more than
+        # SHEET_STEP: each box is as high as C_static reaches in the slab over its run (the
+        # sheet's height where no height map is known)
+        lo_list, hi_list, tops = [], [], []
         for j in range(cells.shape[1]):
-            col = np.concatenate([[False], cells[:, j], [False]])
-            starts = np.nonzero(col[1:] & ~col[:-1])[0]
-            stops = np.nonzero(~col[1:] & col[:-1])[0]
-            for s0, s1 in zip(starts, stops, strict=True):
-                lo_list.append((s0, j))
-                hi_list.append((s1, j + 1))
+            if hmap is not None and j < hmap.shape[1]:
+                col_h = np.full(cells.shape[0], sh.height)
+                n_h = min(cells.shape[0], hmap.shape[0])
+                col_h[:n_h] = hmap[:n_h, j]
+            else:
+                col_h = np.full(cells.shape[0], sh.height)
+            i = 0
+            while i < cells.shape[0]:
+                if not cells[i, j]:
+                    i += 1
+                    continue
+                start, top, base = i, col_h[i], col_h[i]
+                i += 1
+                while i < cells.shape[0] and cells[i, j] and abs(col_h[i] - base) <= SHEET_STEP:
+                    top = max(top, col_h[i])
+                    i += 1
+                lo_list.append((start, j))
+                hi_list.append((i, j + 1))
+                tops.append(float(top))
         lo2 = np.minimum(origin + np.array(lo_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
         hi2 = np.minimum(origin + np.array(hi_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
-        boxes = box_vertices(
-            np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, np.full(len(hi2), sh.height)])
-        )
+        boxes = box_vertices(np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, tops]))
         W = _to_world(sh.to_local())
         out.append(boxes @ W[:, :3].T + W[:, 3])
     return np.concatenate(out) if out else np.zeros((0, 8, 3))

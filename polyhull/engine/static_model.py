@@ -383,6 +383,39 @@ def _to_world(M: np.ndarray) -> np.ndarray:
     return out
 
 
+SHEET_PITCH = 0.1
+"""Cell [m] of the sheets' height maps (and of the dynamic rules' sheet boxes)."""
+
+
+def sheet_heights(sheet: Sheet, hull_contains, step: float = 0.01) -> np.ndarray:  # noqa: ANN001
+    """(nx, ny) the local height [m] up to which C_static may reach inside the sheet's slab,
+    per ``SHEET_PITCH`` cell of the face's rectangle (from its low corner).
+
+    C_static is sampled (``hull_contains``, the static model's point oracle) on vertical
+    lines through the cells' corners and centres every ``step``; a cell takes the highest
+    sample of its 3 x 3 neighbourhood plus ``2 * step``, at most the sheet's height. The
+    band in front of a surface varies slowly, so this bounds C_static over the cell; where
+    a shadow reaches the slab's top, the cell is as tall as the sheet.
+    """
+    (x0, y0), (x1, y1) = sheet.local_box()
+    nx = max(int(math.ceil((x1 - x0) / SHEET_PITCH)), 1)
+    ny = max(int(math.ceil((y1 - y0) / SHEET_PITCH)), 1)
+    gx = np.minimum(x0 + SHEET_PITCH * np.arange(2 * nx + 1) / 2.0, x1)
+    gy = np.minimum(y0 + SHEET_PITCH * np.arange(2 * ny + 1) / 2.0, y1)
+    zs = np.arange(0.0, sheet.height + step, step)
+    X, Y, Z = np.meshgrid(gx, gy, zs, indexing="ij")
+    local = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    W = _to_world(sheet.to_local())
+    inside = np.asarray(hull_contains(local @ W[:, :3].T + W[:, 3])).reshape(X.shape)
+    top = np.where(inside.any(axis=2), zs[np.argmax(np.where(inside, zs, -1.0), axis=2)], 0.0)  # (2nx+1, 2ny+1)
+    cell = np.zeros((nx, ny))
+    for i in range(nx):
+        for j in range(ny):
+            cell[i, j] = top[2 * i : 2 * i + 3, 2 * j : 2 * j + 3].max()
+    grown = ndimage.maximum_filter(cell, size=3, mode="nearest")
+    return np.minimum(grown + 2.0 * step, sheet.height)
+
+
 def remove_sheets(
     region: m3.Manifold,
     sheets: Sequence[Sheet],
@@ -531,6 +564,8 @@ class StaticModel:
         region: R3_static: without its noise sheets and implausible components.
         removed: What the static plausibility removed, each with its rule.
         sheets: The surfaces whose sheets were judged.
+        sheet_heights: Per sheet, the height map of C_static inside its slab
+            (:func:`sheet_heights`): what a sheet box under a kept piece restores.
         touch: Voxels within ``support_eps`` of R3_static.
         bvh: python-fcl object of R3_static (None when it is empty).
         hull_volume: Volume of C_static [m^3].
@@ -545,6 +580,7 @@ class StaticModel:
     region: m3.Manifold
     removed: tuple[RemovedComponent, ...]
     sheets: tuple[Sheet, ...]
+    sheet_heights: tuple[np.ndarray, ...]
     touch: TouchGrid
     bvh: fcl.CollisionObject | None
     hull_volume: float
@@ -593,6 +629,8 @@ class StaticModel:
         arrays["sheet_numbers"] = np.array(
             [[s.axis, s.sign, s.level, *s.lo, *s.hi, s.height] for s in self.sheets], dtype=np.float64
         ).reshape(-1, 8)
+        for i, h in enumerate(self.sheet_heights):
+            arrays[f"sheet_heights{i}"] = h
         arrays["touch_origin"] = self.touch.origin
         arrays["touch_pitch"] = np.array(self.touch.pitch)
         arrays["touch_table"] = self.touch.table
@@ -623,6 +661,7 @@ class StaticModel:
                 Sheet(str(n), int(a), int(sg), float(lv), (float(l0), float(l1)), (float(h0), float(h1)), float(h))
                 for n, (a, sg, lv, l0, l1, h0, h1, h) in zip(data["sheet_names"], data["sheet_numbers"], strict=True)
             )
+            heights = tuple(np.asarray(data[f"sheet_heights{i}"]) for i in range(len(sheets)))
             touch = TouchGrid(np.asarray(data["touch_origin"]), float(data["touch_pitch"]), np.asarray(data["touch_table"]))
             hull_volume = float(data["hull_volume"])
         return cls(
@@ -635,6 +674,7 @@ class StaticModel:
             region=mf["region"],
             removed=removed,
             sheets=sheets,
+            sheet_heights=heights,
             touch=touch,
             bvh=manifold_to_fcl(mf["region"]),
             hull_volume=hull_volume,
@@ -663,6 +703,7 @@ class StaticModel:
         r2 = check_manifold(hull - solids, "static region R2_static")
         p = cell.plausibility
         sheets = measured_sheets(cell, cams) if p.floor_shell else ()
+        heights = tuple(sheet_heights(sh, lambda pts: _hull_contains(cams, pts, k)) for sh in sheets)
         rest, removed_sheets = remove_sheets(r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids)
         support = (
             m3.Manifold.batch_boolean([o.manifold() for o in cell.obstacles], m3.OpType.Add)
@@ -690,6 +731,7 @@ class StaticModel:
             region=region,
             removed=tuple(removed_sheets) + tuple(result.removed),
             sheets=sheets,
+            sheet_heights=heights,
             touch=touch,
             bvh=manifold_to_fcl(region),
             hull_volume=float(hull.volume()),
@@ -700,18 +742,22 @@ class StaticModel:
 
         The independent point oracle of the static mesh (the same surfaces, no booleans).
         """
-        pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
-        count = np.zeros(len(pts), dtype=np.int64)
-        for s in self.cameras:
-            z, surf = s.surface_depth(pts)
-            count += (z > s.camera.near) & (z < surf)
-        return count < k_of_n
+        return _hull_contains(self.cameras, points_world, k_of_n)
+
+
+def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of_n: int) -> np.ndarray:
+    pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    count = np.zeros(len(pts), dtype=np.int64)
+    for s in cameras:
+        z, surf = s.surface_depth(pts)
+        count += (z > s.camera.near) & (z < surf)
+    return count < k_of_n
 
 
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-3"
+_CACHE_FORMAT = b"polyhull-static-model-4"
 
 
 def cache_directory() -> Path | None:
