@@ -37,7 +37,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..typed import ArrayF64
-from .pixels import build_pyramid, pyramid_layout
+from .pixels import build_pyramid, push_row, pyramid_layout
 
 __all__ = ["CameraStack", "ImageStack", "PieceSet", "PyramidStack", "carve", "piece_vertices", "piece_volumes"]
 
@@ -345,32 +345,10 @@ def _carve(
                     )
                     if ok == 0:
                         continue
-                    if ns == cap:
-                        cap *= 2
-                        grown = np.empty((cap, 7), dtype=np.float64)
-                        grown[:ns] = stack[:ns]
-                        stack = grown
-                    stack[ns, 0] = c
-                    stack[ns, 1] = a0
-                    stack[ns, 2] = a1
-                    stack[ns, 3] = b0
-                    stack[ns, 4] = b1
-                    stack[ns, 5] = c0
-                    stack[ns, 6] = c1
+                    stack = push_row(stack, ns, (float(c), float(a0), float(a1), float(b0), float(b1), float(c0), float(c1)))
                     ns += 1
         if keep:
-            if no == out_cap:
-                out_cap *= 2
-                grown = np.empty((out_cap, 7), dtype=np.float64)
-                grown[:no] = out[:no]
-                out = grown
-            out[no, 0] = c
-            out[no, 1] = u0
-            out[no, 2] = u1
-            out[no, 3] = v0
-            out[no, 4] = v1
-            out[no, 5] = z0
-            out[no, 6] = z1
+            out = push_row(out, no, (float(c), float(u0), float(u1), float(v0), float(v1), float(z0), float(z1)))
             no += 1
     return out[:no], overflow
 

@@ -299,6 +299,19 @@ def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.nd
 
 
 @nb.njit(cache=True, nogil=True)
+def push_row(out, n, row):  # pragma: no cover - compiled
+    """Write ``row`` (a tuple of floats) as row ``n`` of ``out``, doubling ``out`` when it
+    is full; returns the (possibly new) array."""
+    if n == out.shape[0]:
+        grown = np.empty((2 * out.shape[0], out.shape[1]), dtype=out.dtype)
+        grown[:n] = out[:n]
+        out = grown
+    for j in range(len(row)):
+        out[n, j] = row[j]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
 def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no cover - compiled
     """Pieces (u0, u1, v0, v1 pixel indices inclusive, z0, z1) of one camera.
 
@@ -368,17 +381,7 @@ def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no co
                             rlo = nlo
                             rhi = nhi
                             u += 1
-                        if n == cap:
-                            cap *= 2
-                            grown = np.empty((cap, 6), dtype=np.float64)
-                            grown[:n] = out[:n]
-                            out = grown
-                        out[n, 0] = ra
-                        out[n, 1] = u - 1
-                        out[n, 2] = v
-                        out[n, 3] = v
-                        out[n, 4] = rlo
-                        out[n, 5] = rhi
+                        out = push_row(out, n, (float(ra), float(u - 1), float(v), float(v), rlo, rhi))
                         n += 1
             else:
                 zmin = np.inf
@@ -393,17 +396,7 @@ def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no co
                             pu1 = max(pu1, u)
                             pv0 = min(pv0, v)
                             pv1 = max(pv1, v)
-                if n == cap:
-                    cap *= 2
-                    grown = np.empty((cap, 6), dtype=np.float64)
-                    grown[:n] = out[:n]
-                    out = grown
-                out[n, 0] = pu0
-                out[n, 1] = pu1
-                out[n, 2] = pv0
-                out[n, 3] = pv1
-                out[n, 4] = zmin
-                out[n, 5] = zmax
+                out = push_row(out, n, (float(pu0), float(pu1), float(pv0), float(pv1), zmin, zmax))
                 n += 1
     return out[:n]
 
