@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from .errors import PolyhullError
@@ -27,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
             "occlusion, distance and speed-and-separation monitoring."
         ),
     )
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"polyhull {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         module = importlib.import_module(f"polyhull.commands.{name}")
@@ -36,6 +40,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``polyhull`` console script; returns the exit code."""
+    try:
+        try:
+            return _main(argv)
+        finally:
+            sys.stdout.flush()  # inside the try: a closed pipe shows here, not at exit
+    except BrokenPipeError:
+        # The reader of stdout went away (``polyhull ... | head``): stop quietly, as a
+        # shell tool does, and keep Python from reporting the flush at exit.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 141
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "func", None) is None:
