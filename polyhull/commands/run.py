@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
+from collections import defaultdict
 from pathlib import Path
 
 from ..errors import PolyhullError
@@ -77,13 +79,19 @@ def _run(args: argparse.Namespace) -> int:
         print(f"region R2 / R3  {vols['volume_r2']:.3f} / {vols['volume_region']:.3f} m^3")
         print(f"min distance    {'none' if not math.isfinite(d) else f'{d:.3f} m'} ({verdict.closest_link})")
         print(f"speed scale     {verdict.speed_scale:.3f}")
+        # one line per rule: how many parts it removed and their volume
+        by_rule: dict[str, list[float]] = defaultdict(list)
         for r in verdict.removed:
-            print(f"removed         {r.rule}: {r.volume:.4f} m^3")
+            by_rule[r.rule].append(r.volume)
+        for rule, volumes in by_rule.items():
+            parts = "part" if len(volumes) == 1 else "parts"
+            print(f"removed         {rule}: {len(volumes)} {parts}, {sum(volumes):.4f} m^3")
         for f in verdict.faults:
             print(f"FAULT           {f}")
         for w in verdict.warnings:
             print(f"warning         {w}")
         print("timings [ms]    " + ", ".join(f"{k} {v:.1f}" for k, v in verdict.timings.items()))
     if args.export is not None:
-        print(f"wrote {', '.join(str(p) for p in paths)}", flush=True)
+        # with --json, stdout holds the JSON object only
+        print(f"wrote {', '.join(str(p) for p in paths)}", file=sys.stderr if args.json else sys.stdout, flush=True)
     return 0

@@ -1,0 +1,33 @@
+"""``polyhull run``: one cycle from a recorded frames file, as text or as JSON only."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from polyhull import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
+FRAMES = ROOT / "fixtures" / "frames" / "small_walk_000.npz"
+
+
+def test_json_with_export_keeps_stdout_json_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "regions"
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES), "--json", "--export", str(out)]) == 0
+    captured = capsys.readouterr()
+    verdict = json.loads(captured.out)  # the whole of stdout is one JSON document
+    assert verdict["volume_hull"] > 0
+    assert "wrote" in captured.err
+    assert sorted(p.name for p in out.iterdir()) == ["hull.ply", "region.ply", "robot_occlusion.ply"]
+
+
+def test_text_summarises_removals_per_rule(capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES)]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("removed")]
+    rules = [line.split()[1].rstrip(":") for line in lines]
+    assert rules, "the noisy small-walk frames leave artifacts to remove"
+    assert len(rules) == len(set(rules)), lines  # one line per rule
+    assert all(" part" in line and "m^3" in line for line in lines)
