@@ -458,10 +458,8 @@ class Monitor:
             st = float(stamp)  # type: ignore[arg-type]
         except (TypeError, ValueError):
             st = math.nan
-        try:
-            qv = np.asarray(q, dtype=np.float64).reshape(-1) if q is not None else np.zeros(0)
-        except (TypeError, ValueError):
-            qv = np.zeros(0)
+        # the verdict echoes q only when it is a real array (never a cast of bad input)
+        qv = np.asarray(q, dtype=np.float64).reshape(-1) if q is not None and _is_real_array(q) else np.zeros(0)
         return Verdict(
             stamp=st if math.isfinite(st) else math.nan,
             q=qv,

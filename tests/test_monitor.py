@@ -184,3 +184,26 @@ def test_exceptions_become_verdicts(fresh_monitor: Monitor, monkeypatch: pytest.
     _assert_fault(v, type(exc).__name__, "boom")
     monkeypatch.undo()
     _assert_latches_then_resets(m, 5.0, "boom")
+
+
+@pytest.mark.parametrize(
+    "q",
+    ["abc", "0,0,0,0,0,0", object(), {}, [[0.0, 1.0], [2.0]], np.zeros((1, 6)), np.zeros(6) + 1j, [0.0] * 5],
+    ids=["str", "csv", "object", "dict", "ragged", "shape-1x6", "complex", "short"],
+)
+def test_hostile_joint_state_is_a_named_fault(fresh_monitor: Monitor, q: object) -> None:
+    """SPEC section 4: step never raises; a bad q gives speed 0 and a joint-state fault,
+    without a warning and without echoing a cast of the bad input."""
+    import warnings
+
+    frames = _clean(fresh_monitor, 1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        v = fresh_monitor.step(frames, q, stamp=1.0)  # type: ignore[arg-type]
+    assert v.speed_scale == 0.0
+    assert any(f.startswith("joint state") for f in v.faults), v.faults
+    real = (isinstance(q, np.ndarray) and q.dtype.kind == "f") or (
+        isinstance(q, list) and all(isinstance(x, float) for x in q)
+    )
+    if not real:
+        assert v.q.size == 0  # never a cast of input that is not real numbers
