@@ -143,6 +143,9 @@ def test_place_errors(cell_file: Path, tmp_path: Path):
         run(str(no_mounting), "--budget-evals", "2", "--workers", "1", "--no-progress")
     with pytest.raises(PolyhullError, match="budget-evals"):
         run(str(cell_file), "--budget-evals", "0", "--workers", "1")
+    for seconds in ("0", "-1", "nan"):
+        with pytest.raises(PolyhullError, match="--budget-seconds"):
+            run(str(cell_file), "--budget-seconds", seconds, "--workers", "1")
 
 
 def test_parse_helpers():

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
 import sys
 import time
@@ -167,6 +168,8 @@ def _run(args: argparse.Namespace) -> int:
         raise PolyhullError(f"--scenes must be >= 1, got {args.scenes}")
     if args.budget_evals is not None and args.budget_evals < 1:
         raise PolyhullError(f"--budget-evals must be >= 1, got {args.budget_evals}")
+    if args.budget_seconds is not None and not (math.isfinite(args.budget_seconds) and args.budget_seconds > 0):
+        raise PolyhullError(f"--budget-seconds must be a time > 0 s, got {args.budget_seconds}")
     max_evals = args.budget_evals
     if max_evals is None and args.budget_seconds is None:
         max_evals = _DEFAULT_EVALS
