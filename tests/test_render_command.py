@@ -76,6 +76,15 @@ def test_render_writes_a_frames_file(cell_file, tmp_path, capsys):
     assert "wrote" in text and "80x60" in text
 
 
+def test_a_target_outside_the_zone_is_warned_about(cell_file, tmp_path, capsys):
+    out = tmp_path / "frames.npz"
+    assert run([str(cell_file), "--target", "person@20,0", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "--target person@20,0 lies outside the zone" in err
+    assert run([str(cell_file), "--target", "person@1.0,1.5", "--out", str(out)]) == 0
+    assert "outside the zone" not in capsys.readouterr().err
+
+
 def test_targets_show_up_and_exact_is_reproducible(cell_file, tmp_path):
     empty, person, again, mesh_file = (tmp_path / n for n in ("e.npz", "p.npz", "q.npz", "box.stl"))
     assert run([str(cell_file), "--exact", "--out", str(empty)]) == 0

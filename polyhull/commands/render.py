@@ -9,6 +9,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import sys
 import typing
 from dataclasses import dataclass
 from pathlib import Path
@@ -231,6 +232,15 @@ def _run(args: argparse.Namespace) -> int:
     specs = [parse_target(text) for text in args.target]
     cell = load_cell(args.cell)
     targets = [build_target(spec, cell) for spec in specs]
+    zlo, zhi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
+    for text, mesh in zip(args.target, targets, strict=True):
+        lo, hi = mesh.bounds
+        if np.any(hi < zlo) or np.any(lo > zhi):
+            print(
+                f"polyhull render: warning: --target {text} lies outside the zone "
+                f"{zlo.tolist()}..{zhi.tolist()} m: no camera region will hold it",
+                file=sys.stderr,
+            )
     simulator = Simulator(cell, effects=effects)
     if q is None:
         q = np.asarray(cell.robot.q if cell.robot is not None else (), dtype=np.float64)
