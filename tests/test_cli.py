@@ -33,3 +33,15 @@ def test_a_closed_pipe_is_not_a_traceback(monkeypatch) -> None:  # noqa: ANN001
         assert cli.main(["render", "--help"]) == 141
     finally:
         stdout.close()
+
+
+def test_help_does_not_import_the_engine() -> None:
+    """``polyhull --help`` parses before the heavy libraries are loaded (the package's
+    public names are imported when first used)."""
+    code = (
+        "import sys; from polyhull import cli; cli.build_parser(); "
+        "print(sorted(m for m in ('trimesh', 'manifold3d', 'numba', 'fcl') if m in sys.modules))"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
