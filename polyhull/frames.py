@@ -11,6 +11,7 @@ A frames file is ``.npz``: one float32 (H, W) depth array [m] per camera name, p
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,17 +103,29 @@ def load_frames(path: str | Path) -> FramesFile:
         raise FrameError(f"{path}: no such frames file")
     try:
         data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise FrameError(f"{path}: not a readable .npz frames file ({exc})") from exc
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise FrameError(f"{path}: not an .npz frames file (one array, not named fields)")
     with data:
         keys = list(data.keys())
+        arrays: dict[str, np.ndarray] = {}
+        for key in keys:
+            try:
+                arrays[key] = data[key]
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+                # a truncated archive, or an object array (never unpickled)
+                raise FrameError(f"{path}: field {key!r} cannot be read ({exc})") from exc
         for key in _RESERVED:
             if key not in keys:
                 raise FrameError(f"{path}: missing field {key!r} (frames files hold q and stamp)")
-        q = np.asarray(data["q"], dtype=np.float64).reshape(-1)
+        try:
+            q = np.asarray(arrays["q"], dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise FrameError(f"{path}: field 'q' must be real numbers [rad] ({exc})") from exc
         if not np.all(np.isfinite(q)):
             raise FrameError(f"{path}: field 'q' must be finite, got {q.tolist()}")
-        stamp_arr = np.asarray(data["stamp"])
+        stamp_arr = np.asarray(arrays["stamp"])
         if stamp_arr.size != 1 or not np.isfinite(float(stamp_arr.reshape(-1)[0])):
             raise FrameError(f"{path}: field 'stamp' must be one finite number [s]")
         stamp = float(stamp_arr.reshape(-1)[0])
@@ -121,7 +134,7 @@ def load_frames(path: str | Path) -> FramesFile:
             if key in _RESERVED:
                 continue
             try:
-                frames[key] = DepthFrame(camera=key, depth=data[key], stamp=stamp)
+                frames[key] = DepthFrame(camera=key, depth=arrays[key], stamp=stamp)
             except FrameError as exc:
                 raise FrameError(f"{path}: field {key!r}: {exc}") from exc
     if not frames:

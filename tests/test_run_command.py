@@ -31,3 +31,18 @@ def test_text_summarises_removals_per_rule(capsys: pytest.CaptureFixture[str]) -
     assert rules, "the noisy small-walk frames leave artifacts to remove"
     assert len(rules) == len(set(rules)), lines  # one line per rule
     assert all(" part" in line and "m^3" in line for line in lines)
+
+
+def test_broken_frames_files_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import numpy as np
+
+    truncated = tmp_path / "truncated.npz"
+    truncated.write_bytes(FRAMES.read_bytes()[:3000])
+    objects = tmp_path / "objects.npz"
+    np.savez(objects, sw=np.array([object()], dtype=object), q=np.zeros(6), stamp=1.0)
+    single = tmp_path / "single.npy"
+    np.save(single, np.zeros((4, 4)))
+    for path, words in ((truncated, "not a readable .npz"), (objects, "field 'sw' cannot be read"), (single, "not an .npz")):
+        assert cli.main(["run", str(CELL), "--frames", str(path)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and str(path) in err and words in err, err
