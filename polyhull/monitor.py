@@ -311,6 +311,7 @@ class Monitor:
         self._margin = self._padding * math.sqrt(3.0)
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
+        self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
@@ -857,8 +858,11 @@ class Monitor:
         lo = self._seed_lo - reach
         hi = self._seed_hi + reach
         parts = []
-        mem_free = ImageStack(self._stack, fill=None)  # every camera's image is written below
-        mem_end = ImageStack(self._stack, fill=None)
+        # Reused every cycle: the memory's images live only inside this call (every
+        # camera's image is written below before it is read).
+        if self._mem_stacks is None:
+            self._mem_stacks = (ImageStack(self._stack, fill=None), ImageStack(self._stack, fill=None))
+        mem_free, mem_end = self._mem_stacks
         corners = np.stack(
             [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
             axis=1,
