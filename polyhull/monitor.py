@@ -38,7 +38,7 @@ from scipy.spatial import ConvexHull
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, winding_numbers
 from .engine.boxes import any_overlap
-from .engine.dynamic_rules import DynamicContext, DynamicResult, judge_dynamic
+from .engine.dynamic_rules import DynamicContext, DynamicResult, LazyMesh, judge_dynamic
 from .engine.pieces import (
     CameraStack,
     CarveParams,
@@ -976,7 +976,7 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
         return ()
     vols = piece_volumes(boxes, stack)
     centroid = (verts.mean(axis=1) * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
-    return (RemovedComponent("small_gaps", float(vols.sum()), centroid, _LazyHexahedra(verts)),)
+    return (RemovedComponent("small_gaps", float(vols.sum()), centroid, LazyMesh(_hexahedra_manifold, verts)),)
 
 
 class _CameraPixels(NamedTuple):
@@ -988,19 +988,6 @@ class _CameraPixels(NamedTuple):
     unexplained: int
     invalid_share: float
     far_side_share: float
-
-
-class _LazyHexahedra:
-    """The union of hexahedra as a manifold, built when first read."""
-
-    def __init__(self, vertices: ArrayF64) -> None:
-        self._vertices = vertices
-        self._mesh: m3.Manifold | None = None
-
-    def get(self) -> m3.Manifold:
-        if self._mesh is None:
-            self._mesh = _hexahedra_manifold(self._vertices)
-        return self._mesh
 
 
 def _robot_body(padded_world: list[ArrayF64]) -> m3.Manifold:

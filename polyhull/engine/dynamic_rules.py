@@ -343,11 +343,11 @@ def judge_dynamic(
     for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
         idx = np.nonzero(shell_cut & (labels == k))[0]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
-        removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, _LazyMesh(make_mesh, idx)))
+        removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, LazyMesh(make_mesh, idx)))
     for k in np.nonzero(removed_c)[0]:
         idx = np.nonzero(labels == k)[0]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
-        removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, _LazyMesh(make_mesh, idx)))
+        removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, LazyMesh(make_mesh, idx)))
 
     kept_k = np.unique(labels[keep])
     # Only components that pass too_small and flying on their own (not only because they
@@ -442,8 +442,8 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
     return np.concatenate(out) if out else np.zeros((0, 8, 3))
 
 
-class _LazyMesh:
-    """A removed component's mesh, built when first read."""
+class LazyMesh:
+    """A removed component's mesh, ``make(arg)``, built when first read."""
 
     def __init__(self, make, idx: np.ndarray) -> None:  # noqa: ANN001
         self._make = make
