@@ -45,6 +45,12 @@ _HEX_FACES = np.array(
 )
 
 
+DISTANCE_BATCH = 32
+"""Dynamic pieces in the first BVH; they are taken nearest first (by a lower bound of
+their distance), and each further batch is four times larger while some of its pieces can
+still be nearer than the best distance so far."""
+
+
 class DistanceResult(NamedTuple):
     """Minimum distance between the region and the robot.
 
@@ -97,6 +103,15 @@ def points_in_hexahedra(points: ArrayF64, vertices: ArrayF64) -> np.ndarray:
         return out
     from scipy.spatial import cKDTree
 
+    # only hexahedra whose bounding box holds a point
+    lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+    if len(points) <= 64:
+        near = np.zeros(len(vertices), dtype=bool)
+        for p in points:
+            near |= np.all((lo <= p) & (p <= hi), axis=1)
+        if not near.any():
+            return out
+        vertices = vertices[near]
     f = vertices[:, _HEX_FACES]  # (N, 6, 4, 3)
     n = np.cross(f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0])
     n = n + np.cross(f[:, :, 2] - f[:, :, 0], f[:, :, 3] - f[:, :, 0])  # robust to a degenerate corner
@@ -192,6 +207,7 @@ class RobotDistanceModel:
         static_contains: Callable[[ArrayF64], np.ndarray] | None = None,
         pieces: ArrayF64 | None = None,
         region: m3.Manifold | None = None,
+        best: DistanceResult | None = None,
     ) -> DistanceResult:
         """Minimum distance between the region and the robot at the given link poses.
 
@@ -201,11 +217,17 @@ class RobotDistanceModel:
             static_contains: Which points (P, 3) are inside the static region.
             pieces: (N, 8, 3) convex hexahedra of the dynamic region [m], or None.
             region: A region given as one manifold instead (tests, inspection).
+            best: The distance of another part of the region measured already (e.g.
+                the static region's, reused while the dynamic pieces change): the
+                result is the nearer of the two.
 
         Raises:
             GeometryError: FCL failed.
         """
-        best = DistanceResult(math.inf, None, None)
+        if best is None:
+            best = DistanceResult(math.inf, None, None)
+        elif best.distance <= 0.0:
+            return best
         names = list(self._objects)
         inner = self.inner_points(T_world_links)
         inner_pts = np.array([inner[n] for n in names]).reshape(-1, 3)
@@ -233,20 +255,28 @@ class RobotDistanceModel:
                 c, r = self._spheres[name]
                 T = T_world_links[name]
                 spheres[name] = (T[:3, :3] @ c + T[:3, 3], r)
-            lower = np.full(len(centers), np.inf)
+            lower = np.empty((len(names), len(centers)))
             upper = best.distance
             mids = pieces.mean(axis=1)  # inside each convex piece
-            for name, (c, r) in spheres.items():
-                lower = np.minimum(lower, np.linalg.norm(centers - c, axis=1) - radii - r)
+            for j, (name, (c, r)) in enumerate(spheres.items()):
+                lower[j] = np.linalg.norm(centers - c, axis=1) - radii - r
                 upper = min(upper, float(np.linalg.norm(mids - inner[name], axis=1).min()))
-            cand = lower < upper
-            if cand.any():
-                verts, tris = hexahedra_triangles(pieces[cand])
+            low = lower.min(axis=0)
+            # nearest first, in batches: a batch's BVH is built only while some of its
+            # pieces can still be nearer than the best distance so far
+            cand = np.nonzero(low < upper)[0]
+            order = cand[np.argsort(low[cand], kind="stable")]
+            b0, size = 0, DISTANCE_BATCH
+            while b0 < len(order):
+                batch = order[b0 : b0 + size]
+                b0, size = b0 + size, 4 * size
+                batch = batch[low[batch] < best.distance]
+                if len(batch) == 0:
+                    break
+                verts, tris = hexahedra_triangles(pieces[batch])
                 obj = fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
-                cc, cr = centers[cand], radii[cand]
-                for name in names:
-                    c, r = spheres[name]
-                    if float((np.linalg.norm(cc - c, axis=1) - cr - r).min()) >= best.distance:
+                for j, name in enumerate(names):
+                    if float(lower[j, batch].min()) >= best.distance:
                         continue
                     d, pts = self._query(obj, name, T_world_links[name])
                     if d <= 0.0:

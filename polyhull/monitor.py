@@ -38,7 +38,15 @@ from scipy.spatial import ConvexHull
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, winding_numbers
 from .engine.boxes import any_overlap
-from .engine.dynamic_rules import DynamicContext, DynamicResult, LazyMesh, judge_dynamic
+from .engine.dynamic_rules import (
+    DynamicContext,
+    DynamicResult,
+    LazyMesh,
+    crosses_sheet_top,
+    in_shells,
+    judge_dynamic,
+    sheets_under,
+)
 from .engine.pieces import (
     CameraStack,
     CarveParams,
@@ -56,6 +64,7 @@ from .engine.pixels import (
     tile_segments,
     window_range,
 )
+from .engine.refine import FRONT_SLACK, MEMORY, OWN, REACH_EXTRA, SPARED, RegionRules, refine_kept
 from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
 from .errors import PolyhullError
@@ -312,6 +321,9 @@ class Monitor:
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
         self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
+        # the top of the floor's noise sheet (nothing crosses it without a floor sheet)
+        floor = [sh for sh in self.static.sheets if sh.name == "floor"]
+        self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
@@ -342,6 +354,7 @@ class Monitor:
         self._seed_lo: ArrayF64 | None = None
         self._seed_hi: ArrayF64 | None = None
         self._prev_stamp: float | None = None
+        self._prev_distance = math.inf  # where the last cycle's frontier was
         self.last_images: CycleImages | None = None
 
     @property
@@ -639,11 +652,18 @@ class Monitor:
         params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
         pyramid_stack = PyramidStack.build(free_stack, active)
 
+        # The distance is decided near the frontier (about last cycle's distance): pieces
+        # there, and pieces crossing the floor sheet's top within reach of it, are split
+        # finely, coarser behind it (:mod:`polyhull.engine.refine` finishes the job).
+        front = 0.0 if not math.isfinite(self._prev_distance) else max(self._prev_distance - FRONT_SLACK, 0.0)
+        floor_top = (self._floor_top, REACH_EXTRA + cell.plausibility.floor_shell_margin)
+
         def run_carve(init: np.ndarray, frees: ImageStack, ends: ImageStack, coarse: bool = False) -> tuple[PieceSet, bool]:
             p = params
             if coarse:
                 p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
-            return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p)
+                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p)
+            return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top)
 
         pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_stack, end_stack))
         if overflow:
@@ -685,25 +705,58 @@ class Monitor:
                 memory=np.arange(len(allp)) >= len(pieces),
             ),
         )
-        kept = np.concatenate([allp.vertices[result.keep], result.sheet_boxes])
-
         # coverage: the free share of Z is at least 1 - (C_static + pieces) / Z
         occupied = self.static.hull_volume + float(vols.sum())
         free_share = 1.0 - occupied / cell.zone.volume
         if free_share < safety.min_free_share:
             faults.append(f"coverage lost: free share {free_share:.1%} < {safety.min_free_share:.1%}")
 
-        # distance
-        if self._distance_model is not None:
-            dist = self._timed(
-                timings,
-                "distance",
-                lambda: self._distance_model.distance(  # type: ignore[union-attr]
-                    T_links, static=self.static.bvh, static_contains=self._static_contains, pieces=kept
-                ),
-            )
-        else:
-            dist = DistanceResult(math.inf, None, None)
+        # distance, with the kept pieces that decide it carved finely (the frontier), and
+        # the sheets under what stands on a surface
+        is_memory = np.arange(len(allp)) >= len(pieces)
+        flags = (np.where(result.own, OWN, 0) | np.where(is_memory, MEMORY, 0) | np.where(result.spared, SPARED, 0))[
+            result.keep
+        ].astype(np.int8)
+
+        def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+            p = replace(params, size_min=size_min, alpha=alpha)
+            frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
+            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset)[0]
+
+        static_result: list[DistanceResult] = []
+
+        def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
+            if self._distance_model is None:
+                return DistanceResult(math.inf, None, None)
+            if not static_result:  # the static region's distance, once per cycle
+                static_result.append(
+                    self._distance_model.distance(T_links, static=self.static.bvh, static_contains=self._static_contains)
+                )
+            if best is None or static_result[0].distance < best.distance:
+                best = static_result[0]
+            return self._distance_model.distance(T_links, pieces=vertices, best=best)
+
+        rules = RegionRules(
+            in_shells=lambda v: in_shells(v, ctx),
+            crossing=lambda v: crosses_sheet_top(v, ctx),
+            sheets=lambda v: sheets_under(v, ctx),
+            margin=cell.plausibility.floor_shell_margin,
+            too_thin=cell.plausibility.too_thin,
+        )
+        # no robot, or a camera without a frame (the cycle stops anyway): no refinement
+        no_refine = self._distance_model is None or not active.all()
+        refined = self._timed(
+            timings,
+            "distance",
+            lambda: refine_kept(
+                allp.select(result.keep), flags, result.inside[result.keep], rules,
+                np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure,
+            ),
+        )
+        dist, sheet_boxes = refined.distance, refined.sheets
+        kept_pieces = refined.pieces
+        kept = np.concatenate([kept_pieces.vertices, sheet_boxes])
+        refine_removed = (_pieces_removed("too_thin", refined.cut, self._stack),) if len(refined.cut) else ()
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
 
@@ -714,6 +767,7 @@ class Monitor:
         seeds = _seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
         self._seed_lo, self._seed_hi = seeds.min(axis=1), seeds.max(axis=1)
         self._prev_stamp = t
+        self._prev_distance = float(dist.distance)
         self.last_images = CycleImages(
             free={c.name: f for c, f in zip(cell.cameras, free_imgs, strict=True) if f is not None},
             end={c.name: e for c, e in zip(cell.cameras, end_imgs, strict=True) if e is not None},
@@ -740,7 +794,7 @@ class Monitor:
             zone=self._zone,
             pieces=np.concatenate([allp.vertices, gap_verts]),
             kept=kept,
-            n_kept=int(result.keep.sum()),
+            n_kept=len(kept_pieces),
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
             full_pieces=lambda: self._full_pieces(free_stack, run_carve),
@@ -748,7 +802,7 @@ class Monitor:
         return Verdict(
             stamp=t,
             q=np.asarray(qv, dtype=np.float64),
-            removed=self.static.removed + gaps + result.removed,
+            removed=self.static.removed + gaps + result.removed + refine_removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,
@@ -765,7 +819,9 @@ class Monitor:
                 "pieces": len(pieces),
                 "memory_pieces": len(memory),
                 "kept_pieces": int(result.keep.sum()),
-                "sheet_boxes": int(result.sheet_boxes.shape[0]),
+                "refined_pieces": len(kept_pieces),
+                "refine_rounds": refined.rounds,
+                "sheet_boxes": int(sheet_boxes.shape[0]),
             },
             _geometry=geometry,
         )
@@ -969,14 +1025,18 @@ def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: Came
     return piece_vertices(kept, stack)
 
 
+def _pieces_removed(rule: str, pieces: PieceSet, stack: CameraStack) -> RemovedComponent:
+    """One removed component made of ``pieces`` (its mesh built when read)."""
+    vols = piece_volumes(pieces.boxes, stack)
+    centres = 0.5 * (pieces.vertices.min(axis=1) + pieces.vertices.max(axis=1))
+    centroid = (centres * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
+    return RemovedComponent(rule, float(vols.sum()), centroid, LazyMesh(_hexahedra_manifold, pieces.vertices))
+
+
 def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple[RemovedComponent, ...]:
     """The pixel segments (boxes (N, 7), vertices (N, 8, 3)) the small_gaps rule freed this
     cycle, as one reported removal (they are part of R2, before the rules)."""
-    if not len(boxes):
-        return ()
-    vols = piece_volumes(boxes, stack)
-    centroid = (verts.mean(axis=1) * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
-    return (RemovedComponent("small_gaps", float(vols.sum()), centroid, LazyMesh(_hexahedra_manifold, verts)),)
+    return (_pieces_removed("small_gaps", PieceSet(boxes, verts), stack),) if len(boxes) else ()
 
 
 class _CameraPixels(NamedTuple):

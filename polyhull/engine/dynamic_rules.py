@@ -40,7 +40,10 @@ by ``floor_shell_margin``, as high as C_static reaches in the sheet's slab there
 map, measured at precompute): a standing person's legs cross the top of
 the floor's sheet, and their feet are in the sheet within that margin of the legs. Pieces
 wholly inside a sheet (noise in the band, a limb lying flatter than the sheet) do not
-extend it: ``floor_shell_height`` declares that nobody lies flatter.
+extend it: ``floor_shell_height`` declares that nobody lies flatter. The pipeline applies
+this (:func:`sheets_under`) after the kept pieces near the robot are carved finely
+(:mod:`polyhull.engine.refine`), so that a coarse piece that only seems to cross the top
+does not bring a sheet box with it.
 """
 
 from __future__ import annotations
@@ -57,7 +60,18 @@ from ..typed import ArrayF64
 from .boxes import any_overlap, overlap_groups
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
-__all__ = ["TOUCH_EPS", "DynamicContext", "DynamicResult", "group_boxes", "judge_dynamic", "box_vertices"]
+__all__ = [
+    "TOUCH_EPS",
+    "DynamicContext",
+    "DynamicResult",
+    "box_vertices",
+    "crosses_sheet_top",
+    "group_boxes",
+    "in_shells",
+    "judge_dynamic",
+    "shell_cuts",
+    "sheets_under",
+]
 
 TOUCH_EPS = 1e-4
 """Growth [m] of piece bounding boxes when grouping them into components."""
@@ -148,7 +162,13 @@ class DynamicResult:
     Attributes:
         keep: (N,) which pieces are kept.
         labels: (N,) component of every piece.
-        sheet_boxes: (S, 8, 3) the sheet boxes kept under kept components (box corners).
+        own: (N,) the kept pieces that keep the noise sheet under them
+            (:func:`sheets_under`): pieces, not of the memory, of components that pass
+            too_small and flying on their own.
+        spared: (N,) pieces of components that touch the boundary of Z, with
+            ``keep_at_boundary`` (no shell cut).
+        inside: (N,) pieces inside a shell or a noise sheet (all False without
+            ``too_thin``).
         removed: The removed components with their rule (mesh built when read).
         kept_lo: (K, 3) bounding boxes of the kept components (the next cycle's history);
             ``kept_hi`` their maxima.
@@ -159,7 +179,9 @@ class DynamicResult:
 
     keep: np.ndarray
     labels: np.ndarray
-    sheet_boxes: ArrayF64
+    own: np.ndarray
+    spared: np.ndarray
+    inside: np.ndarray
     removed: tuple[RemovedComponent, ...]
     kept_lo: ArrayF64
     kept_hi: ArrayF64
@@ -232,6 +254,26 @@ def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     return out
 
 
+def in_shells(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
+    """(N,) whether each piece lies in a shell around a known object or inside a noise
+    sheet (the ``too_thin`` rule's shells)."""
+    n = vertices.shape[0]
+    inside = np.asarray(_in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1))
+    return inside | _in_sheets(vertices, ctx)
+
+
+def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: DynamicContext) -> np.ndarray:
+    """(N,) the pieces the part-wise ``too_thin`` rule removes: inside a shell
+    (``inside``), not ``spared``, and farther than ``floor_shell_margin`` from every piece
+    outside the shells (of any component: a superset of "of its own", keeps more)."""
+    cut = inside & ~spared
+    if cut.any() and (~inside).any():
+        lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+        m = ctx.params.floor_shell_margin
+        cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m)
+    return cut
+
+
 def judge_dynamic(
     vertices: ArrayF64,
     volumes: ArrayF64,
@@ -247,7 +289,8 @@ def judge_dynamic(
     n = vertices.shape[0]
     if n == 0:
         z = np.zeros((0, 3))
-        return DynamicResult(np.zeros(0, bool), np.zeros(0, np.int64), np.zeros((0, 8, 3)), (), z, z, np.zeros(0, bool))
+        none = np.zeros(0, bool)
+        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none)
     p = ctx.params
     eps = p.support_eps
     lo = vertices.min(axis=1)
@@ -282,17 +325,12 @@ def judge_dynamic(
     # The shell rule, part-wise: a piece inside a shell (around the robot or an obstacle, or
     # a noise sheet) goes unless a piece of its component outside every shell lies within
     # ``floor_shell_margin`` of it (a person reaching into the shell, standing on the floor).
+    spared = boundary[labels] & p.keep_at_boundary
     shell_cut = np.zeros(n, dtype=bool)
     inside = np.zeros(n, dtype=bool)
     if p.too_thin:
-        inside = np.asarray(_in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1))
-        inside |= _in_sheets(vertices, ctx)
-        shell_cut = inside & ~(boundary[labels] & p.keep_at_boundary)
-        if shell_cut.any() and (~inside).any():
-            # Within the margin of any piece outside the shells (a superset of "of its own
-            # component": keeps more).
-            m = p.floor_shell_margin
-            shell_cut[shell_cut] = ~any_overlap(lo[shell_cut], hi[shell_cut], lo[~inside] - m, hi[~inside] + m)
+        inside = in_shells(vertices, ctx)
+        shell_cut = shell_cuts(vertices, inside, spared, ctx)
     fires: dict[str, np.ndarray] = {}
     if p.too_small:
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
@@ -356,23 +394,47 @@ def judge_dynamic(
     own = keep & ~(small | ~supported)[labels]
     if memory is not None:
         own &= ~memory
-    sheet_boxes = _sheets_under(vertices[own], labels[own], np.unique(labels[own]), ctx)
     # Seeds of the next cycle's shadow memory: what was seen as a target, standing on a
     # surface or coming in over the boundary, not what M alone or R3_static spared.
     # Pieces inside a shell or a noise sheet are left out: feet in the floor's sheet lie
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
-    return DynamicResult(keep, labels, sheet_boxes, tuple(removed), clo[kept_k], chi[kept_k], seeds)
+    return DynamicResult(keep, labels, own, spared, inside, tuple(removed), clo[kept_k], chi[kept_k], seeds)
 
 
 SHEET_STEP = 0.03
 """Height change [m] of the sheet's height map that starts a new sheet box along a run."""
 
 
-def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx: DynamicContext) -> ArrayF64:
-    """Boxes of the sheets under the kept pieces (see the module docstring): for every kept
-    piece that comes within a sheet's thickness of its face, the sheet over the piece's
-    footprint on the face, grown by ``floor_shell_margin`` and clipped to the face."""
+def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
+    """(N,) whether each piece crosses the top face of some sheet over that sheet's face:
+    the pieces that keep the sheet under them (:func:`sheets_under`)."""
+    out = np.zeros(vertices.shape[0], dtype=bool)
+    if vertices.shape[0] == 0:
+        return out
+    plo, phi = vertices.min(axis=1), vertices.max(axis=1)
+    for sh in ctx.sheets:
+        idx = _near_sheet(plo, phi, sh, ctx.params.support_eps)
+        if len(idx):
+            out[idx] |= _crossing(vertices[idx], sh, ctx.params.support_eps)[0]
+    return out
+
+
+def _crossing(vertices: ArrayF64, sh: Sheet, eps: float) -> tuple[np.ndarray, ArrayF64, ArrayF64]:
+    """Which pieces cross the sheet's top face over its face, and their local bounds."""
+    (x0, y0), (x1, y1) = sh.local_box()
+    llo, lhi = _local_bounds(vertices, sh)
+    # what stands on the surface (legs) crosses the top face; its feet, inside the
+    # sheet, lie within the margin of that crossing
+    near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= sh.height)
+    near &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
+    return near, llo, lhi
+
+
+def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
+    """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
+    every piece that crosses a sheet's top face, the sheet over the piece's footprint on
+    the face, grown by ``floor_shell_margin`` and clipped to the face."""
     if vertices.shape[0] == 0 or not ctx.sheets:
         return np.zeros((0, 8, 3))
     margin = ctx.params.floor_shell_margin
@@ -385,11 +447,7 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
         if len(idx) == 0:
             continue
         (x0, y0), (x1, y1) = sh.local_box()
-        llo, lhi = _local_bounds(vertices[idx], sh)
-        # pieces that cross the sheet's top face: what stands on the surface (legs) crosses
-        # it; its feet, inside the sheet, lie within the margin of that crossing
-        near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= sh.height)
-        near &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
+        near, llo, lhi = _crossing(vertices[idx], sh, eps)
         if not near.any():
             continue
         a = np.maximum(llo[near, :2] - margin, (x0, y0))
@@ -413,33 +471,47 @@ def _sheets_under(vertices: ArrayF64, labels: np.ndarray, kept: np.ndarray, ctx:
         # runs of occupied cells along x, broken where the height map changes by more than
         # SHEET_STEP: each box is as high as C_static reaches in the slab over its run (the
         # sheet's height where no height map is known)
-        lo_list, hi_list, tops = [], [], []
-        for j in range(cells.shape[1]):
-            if hmap is not None and j < hmap.shape[1]:
-                col_h = np.full(cells.shape[0], sh.height)
-                n_h = min(cells.shape[0], hmap.shape[0])
-                col_h[:n_h] = hmap[:n_h, j]
-            else:
-                col_h = np.full(cells.shape[0], sh.height)
-            i = 0
-            while i < cells.shape[0]:
-                if not cells[i, j]:
-                    i += 1
-                    continue
-                start, top, base = i, col_h[i], col_h[i]
-                i += 1
-                while i < cells.shape[0] and cells[i, j] and abs(col_h[i] - base) <= SHEET_STEP:
-                    top = max(top, col_h[i])
-                    i += 1
-                lo_list.append((start, j))
-                hi_list.append((i, j + 1))
-                tops.append(float(top))
-        lo2 = np.minimum(origin + np.array(lo_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
-        hi2 = np.minimum(origin + np.array(hi_list, dtype=np.float64) * SHEET_PITCH, (x1, y1))
+        col_h = np.full(cells.shape, sh.height)
+        if hmap is not None:
+            n0, n1 = min(cells.shape[0], hmap.shape[0]), min(cells.shape[1], hmap.shape[1])
+            col_h[:n0, :n1] = hmap[:n0, :n1]
+        runs = _sheet_runs(cells, col_h, SHEET_STEP)
+        lo_list, hi_list, tops = runs[:, 0:2], runs[:, 2:4], runs[:, 4]
+        lo2 = np.minimum(origin + lo_list * SHEET_PITCH, (x1, y1))
+        hi2 = np.minimum(origin + hi_list * SHEET_PITCH, (x1, y1))
         boxes = box_vertices(np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, tops]))
         W = _to_world(sh.to_local())
         out.append(boxes @ W[:, :3].T + W[:, 3])
     return np.concatenate(out) if out else np.zeros((0, 8, 3))
+
+
+@nb.njit(cache=True, nogil=True)
+def _sheet_runs(cells, heights, step):  # pragma: no cover - compiled
+    """(R, 5) runs of occupied ``cells`` (nx, ny) along x: i0, j, i1 (exclusive), j + 1, and
+    the highest ``heights`` over the run; a run also breaks where the height differs from
+    its first cell's by more than ``step``."""
+    out = np.empty((cells.shape[0] * cells.shape[1], 5))
+    n = 0
+    for j in range(cells.shape[1]):
+        i = 0
+        while i < cells.shape[0]:
+            if not cells[i, j]:
+                i += 1
+                continue
+            start = i
+            base = heights[i, j]
+            top = base
+            i += 1
+            while i < cells.shape[0] and cells[i, j] and abs(heights[i, j] - base) <= step:
+                top = max(top, heights[i, j])
+                i += 1
+            out[n, 0] = start
+            out[n, 1] = j
+            out[n, 2] = i
+            out[n, 3] = j + 1
+            out[n, 4] = top
+            n += 1
+    return out[:n]
 
 
 class LazyMesh:

@@ -18,7 +18,8 @@ maybe-freed by fewer than k cameras is kept whole: none of its points is free. O
 it is split in two along its longest side (a whole-pixel cut of its rectangle, or its
 depth range at the middle), each half shrunk to the pixels and depths whose segments it
 still meets, until its size is below ``clip(alpha * d, size_min, size_max)`` where ``d`` is
-a lower bound of its distance to the robot: fine near the robot, coarse far from it. A
+a lower bound of its distance to the robot (less an optional offset): fine near the robot,
+coarse far from it. A
 piece that reaches that size undecided is kept: keeping only grows the region.
 
 The pyramids give the minimum and maximum over a superset of the pixel box (aligned cells
@@ -201,7 +202,7 @@ def _refine(free, end, img_off, W, u0, u1, v0, v1, z0, z1):  # pragma: no cover 
 def _carve(
     init, R_cw, t_cw, R_wc, t_wc, intr, size, near, active,
     mins, maxs, pyr_off, pyr_shape, nlev, free, end, img_off,
-    spheres, zlo, zhi, k_of_n, alpha, size_min, size_max, max_pieces,
+    spheres, zlo, zhi, k_of_n, alpha, size_min, size_max, max_pieces, d_offset, sheet_z, sheet_reach,
 ):  # pragma: no cover - compiled
     n_cam = R_cw.shape[0]
     cap = max(64, 4 * init.shape[0])
@@ -309,8 +310,18 @@ def _carve(
                 dy = spheres[s, 1] - cym
                 dz = spheres[s, 2] - czm
                 d = min(d, np.sqrt(dx * dx + dy * dy + dz * dz) - spheres[s, 3])
-            d = max(d - rad, 0.0)
+            d = max(d - rad - d_offset, 0.0)
             allowed = min(max(alpha * d, size_min), size_max)
+            if d < sheet_reach:
+                # crossing the top of the floor's noise sheet near the robot: the crossing
+                # decides whether the sheet under it is kept, so split it finely
+                vz0 = np.inf
+                vz1 = -np.inf
+                for j in range(8):
+                    vz0 = min(vz0, verts[j, 2])
+                    vz1 = max(vz1, verts[j, 2])
+                if vz0 < sheet_z and vz1 >= sheet_z:
+                    allowed = size_min
             ext_z = z1 - z0
             ext_u = (u1 - u0 + 1) * z1 / intr[c, 0]
             ext_v = (v1 - v0 + 1) * z1 / intr[c, 1]
@@ -455,8 +466,16 @@ def carve(
     zone_hi: ArrayF64,
     k_of_n: int,
     params: CarveParams,
+    offset: float = 0.0,
+    sheet: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[PieceSet, bool]:
     """Carve the initial pieces (N, 7) by every other active camera's free depth.
+
+    ``offset`` [m] is subtracted from every piece's distance to the robot before its size
+    budget is taken: with the distance of the nearest piece, pieces there are split down
+    to ``size_min`` (see :mod:`polyhull.engine.refine`). ``sheet = (z, reach)``: a piece
+    that crosses the height ``z`` [m] (the top of the floor's noise sheet) within ``reach``
+    of that offset is split down to ``size_min`` too.
 
     Returns:
         (the kept pieces, True if the piece budget was reached).
@@ -472,6 +491,6 @@ def carve(
         np.ascontiguousarray(robot_spheres, dtype=np.float64).reshape(-1, 4),
         np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),
         int(k_of_n), float(params.alpha), float(params.size_min), float(params.size_max),
-        int(params.max_pieces),
+        int(params.max_pieces), float(offset), float(sheet[0]), float(sheet[1]),
     )
     return PieceSet(boxes, piece_vertices(boxes, stack)), bool(overflow)

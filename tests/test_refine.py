@@ -1,0 +1,143 @@
+"""Refinement at the distance frontier (polyhull.engine.refine), with stand-in rules."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from polyhull.distance import DistanceResult
+from polyhull.engine.dynamic_rules import box_vertices
+from polyhull.engine.pieces import PieceSet
+from polyhull.engine.refine import (
+    OWN,
+    SETTLED,
+    RegionRules,
+    _same_rows,
+    distance_lower_bounds,
+    refine_kept,
+)
+
+
+def _boxes(rows: list[tuple[float, ...]]) -> PieceSet:
+    """Axis-aligned test pieces: each row is (id, x0, y0, z0, x1, y1, z1); the id stands in
+    for the camera-space box (column 0), the rest for the geometry."""
+    a = np.array(rows, dtype=np.float64).reshape(-1, 7)
+    return PieceSet(a.copy(), box_vertices(a[:, 1:4], a[:, 4:7]))
+
+
+@settings(max_examples=60)
+@given(
+    centre=st.tuples(*[st.floats(-2, 2)] * 3),
+    size=st.tuples(*[st.floats(0.01, 1.0)] * 3),
+    sphere=st.tuples(*[st.floats(-2, 2)] * 3, st.floats(0.0, 0.5)),
+    seed=st.integers(0, 1000),
+)
+def test_lower_bound_never_exceeds_a_point_distance(centre, size, sphere, seed) -> None:
+    lo = np.array(centre)
+    v = box_vertices(lo[None], (lo + np.array(size))[None])
+    s = np.array([sphere])
+    bound = distance_lower_bounds(v, s)[0]
+    w = np.random.default_rng(seed).dirichlet(np.ones(8), size=200)  # points of the hull
+    pts = np.concatenate([w @ v[0], v[0]])
+    true = np.maximum(np.linalg.norm(pts - s[0, :3], axis=1) - s[0, 3], 0.0).min()
+    assert bound <= true + 1e-12
+
+
+def test_same_rows() -> None:
+    a = np.array([[0, 1, 2, 3, 4, 5.0, 6.0], [1, 1, 2, 3, 4, 5.0, 6.5]])
+    b = np.array([[9, 9, 9, 9, 9, 9.0, 9.0], [0, 1, 2, 3, 4, 5.0, 6.0]])
+    assert _same_rows(a, b).tolist() == [True, False]
+    assert _same_rows(a, b[:0]).tolist() == [False, False]
+
+
+def _rules(margin: float) -> RegionRules:
+    top = 0.3  # a floor sheet 0.3 m thick
+
+    def sheets(v: np.ndarray) -> np.ndarray:
+        if len(v) == 0:
+            return np.zeros((0, 8, 3))
+        lo, hi = v.min(axis=1), v.max(axis=1)
+        return box_vertices(np.column_stack([lo[:, :2] - margin, np.zeros(len(v))]), np.column_stack([hi[:, :2] + margin, np.full(len(v), top)]))
+
+    return RegionRules(
+        in_shells=lambda v: v[:, :, 2].max(axis=1) <= top,
+        crossing=lambda v: (v[:, :, 2].min(axis=1) < top) & (v[:, :, 2].max(axis=1) >= top),
+        sheets=sheets,
+        margin=margin,
+        too_thin=True,
+    )
+
+
+def _measure(robot_x: float):  # noqa: ANN202
+    """Distance from the region's hexahedra to the plane x = robot_x (a robot far in +x)."""
+    calls: list[int] = []
+
+    def measure(vertices: np.ndarray, best: DistanceResult | None) -> DistanceResult:
+        calls.append(len(vertices))
+        d = math.inf if len(vertices) == 0 else float(robot_x - vertices[:, :, 0].max())
+        if best is not None and best.distance < d:
+            return best
+        return DistanceResult(d, None, "link" if math.isfinite(d) else None)
+
+    return measure, calls
+
+
+def test_a_false_crossing_loses_its_sheet_and_the_feet_it_kept() -> None:
+    # A: a coarse piece whose top seems to cross the sheet's top; carved again, only its
+    # part inside the sheet stays. B: a piece inside the sheet, kept only within the
+    # margin of A. C: far from the robot, untouched.
+    kept = _boxes(
+        [
+            (1, 1.0, 0.0, 0.20, 1.1, 0.1, 0.35),  # A
+            (2, 1.2, 0.0, 0.00, 1.3, 0.1, 0.20),  # B
+            (3, -3.0, 0.0, 0.0, -2.9, 0.1, 1.8),  # C: a person standing far away
+        ]
+    )
+    children = {1: [(4, 1.0, 0.0, 0.20, 1.1, 0.1, 0.28)]}
+    seen: list[float] = []
+
+    def recarve(boxes: np.ndarray, memory: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+        seen.extend(boxes[:, 0].tolist())
+        rows = [r for b in boxes for r in children.get(int(b[0]), [tuple(b)])]
+        return _boxes(rows)
+
+    measure, calls = _measure(robot_x=1.6)
+    spheres = np.array([[1.8, 0.05, 0.2, 0.2]])
+    flags = np.array([OWN, OWN, OWN], dtype=np.int8)
+    inside = _rules(0.3).in_shells(kept.vertices)
+    out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, recarve, measure)
+
+    assert 3 not in seen  # beyond the reach of the frontier
+    assert 1 in seen
+    assert out.rounds == 1
+    ids = sorted(out.pieces.boxes[:, 0].tolist())
+    assert ids == [3.0]  # A's child and B are inside the sheet with nothing standing near
+    assert sorted(out.cut.boxes[:, 0].tolist()) == [2.0, 4.0]
+    # the sheet under C only: nothing near the robot any more
+    assert out.sheets.shape[0] == 1 and out.sheets[0, :, 0].max() < 0.0
+    region = np.concatenate([out.pieces.vertices, out.sheets])
+    assert out.distance.distance == measure(region, None).distance
+    assert out.distance.distance > 1.6 - 1.3  # farther than B was
+
+
+def test_unchanged_pieces_settle_and_a_real_crossing_keeps_its_sheet() -> None:
+    kept = _boxes([(1, 1.0, 0.0, 0.0, 1.1, 0.1, 1.7)])  # a leg: no camera frees any of it
+
+    def recarve(boxes: np.ndarray, memory: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+        return _boxes([tuple(b) for b in boxes])
+
+    measure, _ = _measure(robot_x=1.6)
+    out = refine_kept(
+        kept, np.array([OWN], np.int8), np.array([False]), _rules(0.3), np.array([[1.8, 0.05, 0.5, 0.2]]), 0.25, recarve, measure
+    )
+    assert out.rounds == 1
+    assert len(out.pieces) == 1 and len(out.cut) == 0
+    assert len(out.sheets) == 1  # the leg keeps the sheet under it, with the margin
+    assert math.isclose(out.distance.distance, 1.6 - 1.4)
+
+
+def test_settled_flag_value() -> None:
+    assert SETTLED & OWN == 0
