@@ -27,16 +27,16 @@ def _find(parent, i):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _groups(lo, hi, order):  # pragma: no cover - compiled
-    n = order.shape[0]
+def _groups(lo, hi):  # pragma: no cover - compiled
+    """Union-find labels of boxes sorted by ``lo[:, 0]`` (the sweep axis first)."""
+    n = lo.shape[0]
     parent = np.arange(n)
-    for a in range(n):
-        i = order[a]
-        for b in range(a + 1, n):
-            j = order[b]
-            if lo[j, 0] > hi[i, 0]:
+    for i in range(n):
+        hx, ly, hy, lz, hz = hi[i, 0], lo[i, 1], hi[i, 1], lo[i, 2], hi[i, 2]
+        for j in range(i + 1, n):
+            if lo[j, 0] > hx:
                 break
-            if lo[j, 1] <= hi[i, 1] and hi[j, 1] >= lo[i, 1] and lo[j, 2] <= hi[i, 2] and hi[j, 2] >= lo[i, 2]:
+            if lo[j, 1] <= hy and hi[j, 1] >= ly and lo[j, 2] <= hz and hi[j, 2] >= lz:
                 ri = _find(parent, i)
                 rj = _find(parent, j)
                 if ri != rj:
@@ -51,9 +51,21 @@ def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
     """(N,) labels 0..K-1 of the connected groups of overlapping boxes [lo, hi] (N, 3)."""
     if lo.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
-    lo = np.ascontiguousarray(lo, dtype=np.float64)
-    hi = np.ascontiguousarray(hi, dtype=np.float64)
-    roots = _groups(lo, hi, np.argsort(lo[:, 0], kind="stable"))
+    # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
+    # extent along it), the others tested per pair
+    best, best_pairs = 0, -1
+    for a in range(3):
+        keys = np.sort(lo[:, a])
+        pairs = int((np.searchsorted(keys, hi[:, a], side="right") - np.searchsorted(keys, lo[:, a])).sum())
+        if best_pairs < 0 or pairs < best_pairs:
+            best, best_pairs = a, pairs
+    axes = [best] + [a for a in range(3) if a != best]
+    order = np.argsort(lo[:, best], kind="stable")
+    roots = np.empty(lo.shape[0], dtype=np.int64)
+    roots[order] = _groups(
+        np.ascontiguousarray(lo[order][:, axes], dtype=np.float64),
+        np.ascontiguousarray(hi[order][:, axes], dtype=np.float64),
+    )
     _, labels = np.unique(roots, return_inverse=True)
     return labels.astype(np.int64).reshape(-1)
 

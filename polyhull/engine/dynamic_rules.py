@@ -194,35 +194,54 @@ def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF
     return np.sqrt((d * d).sum(axis=2))
 
 
-@nb.njit(cache=True, nogil=True)
-def _inside_planes(points, planes, out):  # pragma: no cover - compiled
-    for i in range(points.shape[0]):
-        if out[i]:
-            continue
-        inside = True
-        for f in range(planes.shape[0]):
-            if points[i, 0] * planes[f, 0] + points[i, 1] * planes[f, 1] + points[i, 2] * planes[f, 2] > planes[f, 3]:
-                inside = False
-                break
-        out[i] = inside
-
-
 def _in_shell(points: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     """(N,) whether each point lies within ``shell_thickness`` of a known object."""
     t = ctx.params.shell_thickness
     inside = np.zeros(len(points), dtype=bool)
-    for lo, hi in ctx.obstacle_boxes:
-        near = np.all((points >= lo - t) & (points <= hi + t), axis=1)
-        if near.any():
-            d = np.maximum(0.0, np.maximum(lo - points[near], points[near] - hi))
-            inside[np.nonzero(near)[0][(d * d).sum(axis=1) <= t * t]] = True
-    for planes, sphere in zip(ctx.robot_shell_planes, ctx.robot_spheres, strict=False):
-        near = np.nonzero(np.linalg.norm(points - sphere[:3], axis=1) <= sphere[3] + t)[0]
-        if len(near):
-            sub = inside[near].copy()
-            _inside_planes(np.ascontiguousarray(points[near]), np.ascontiguousarray(planes), sub)
-            inside[near] = sub
+    if len(points) == 0:
+        return inside
+    boxes = np.array([np.concatenate([lo, hi]) for lo, hi in ctx.obstacle_boxes], dtype=np.float64).reshape(-1, 6)
+    planes = list(ctx.robot_shell_planes)
+    spheres = np.ascontiguousarray(ctx.robot_spheres[: len(planes)], dtype=np.float64).reshape(-1, 4)
+    counts = np.array([len(p) for p in planes[: len(spheres)]], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    flat = np.concatenate(planes[: len(spheres)]).reshape(-1, 4) if len(spheres) else np.zeros((0, 4))
+    _shell_kernel(np.ascontiguousarray(points, dtype=np.float64), boxes, float(t), spheres, np.ascontiguousarray(flat, dtype=np.float64), offsets, inside)
     return inside
+
+
+@nb.njit(cache=True, nogil=True)
+def _shell_kernel(points, boxes, t, spheres, planes, offsets, out):  # pragma: no cover - compiled
+    """Within ``t`` of an obstacle box (exact point-to-box distance) or inside a robot
+    piece's shell polytope (its planes, tested only within its sphere grown by ``t``)."""
+    tt = t * t
+    for i in range(points.shape[0]):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        hit = False
+        for b in range(boxes.shape[0]):
+            dx = max(0.0, max(boxes[b, 0] - x, x - boxes[b, 3]))
+            dy = max(0.0, max(boxes[b, 1] - y, y - boxes[b, 4]))
+            dz = max(0.0, max(boxes[b, 2] - z, z - boxes[b, 5]))
+            if dx * dx + dy * dy + dz * dz <= tt:
+                hit = True
+                break
+        if not hit:
+            for s in range(spheres.shape[0]):
+                dx = x - spheres[s, 0]
+                dy = y - spheres[s, 1]
+                dz = z - spheres[s, 2]
+                r = spheres[s, 3] + t
+                if dx * dx + dy * dy + dz * dz > r * r:
+                    continue
+                ok = True
+                for f in range(offsets[s], offsets[s + 1]):
+                    if x * planes[f, 0] + y * planes[f, 1] + z * planes[f, 2] > planes[f, 3]:
+                        ok = False
+                        break
+                if ok:
+                    hit = True
+                    break
+        out[i] = hit
 
 
 def _near_sheet(lo: ArrayF64, hi: ArrayF64, sheet: Sheet, pad: float) -> np.ndarray:
