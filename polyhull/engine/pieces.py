@@ -311,7 +311,8 @@ def _carve(
                 dz = spheres[s, 2] - czm
                 d = min(d, np.sqrt(dx * dx + dy * dy + dz * dz) - spheres[s, 3])
             d = max(d - rad - d_offset, 0.0)
-            allowed = min(max(alpha * d, size_min), size_max)
+            # no robot (d infinite): the largest size
+            allowed = size_max if d == np.inf else min(max(alpha * d, size_min), size_max)
             if d < sheet_reach:
                 # crossing the top of the floor's noise sheet near the robot: the crossing
                 # decides whether the sheet under it is kept, so split it finely
@@ -323,10 +324,14 @@ def _carve(
                 if vz0 < sheet_z and vz1 >= sheet_z:
                     allowed = size_min
             ext_z = z1 - z0
-            ext_u = (u1 - u0 + 1) * z1 / intr[c, 0]
-            ext_v = (v1 - v0 + 1) * z1 / intr[c, 1]
+            # a single pixel column cannot be split across: only splittable sides count
+            # (a budget below a pixel's footprint would otherwise halve the depth forever)
+            ext_u = (u1 - u0 + 1) * z1 / intr[c, 0] if u1 > u0 else 0.0
+            ext_v = (v1 - v0 + 1) * z1 / intr[c, 1] if v1 > v0 else 0.0
+            if ext_z <= 1e-6:
+                ext_z = 0.0
             ext = max(ext_z, max(ext_u, ext_v))
-            if ext <= allowed or no + ns >= max_pieces:
+            if not ext > allowed or no + ns >= max_pieces:  # (a NaN budget keeps)
                 if no + ns >= max_pieces:
                     overflow = True
                 keep = True
