@@ -709,7 +709,11 @@ class Monitor:
         occupied = self.static.hull_volume + float(vols.sum())
         free_share = 1.0 - occupied / cell.zone.volume
         if free_share < safety.min_free_share:
-            faults.append(f"coverage lost: free share {free_share:.1%} < {safety.min_free_share:.1%}")
+            # a lower bound of the free share (overlapping pieces count twice)
+            faults.append(
+                f"coverage lost: only {max(free_share, 0.0):.1%} of the zone is surely seen free "
+                f"(< {safety.min_free_share:.1%})"
+            )
 
         # distance, with the kept pieces that decide it carved finely (the frontier), and
         # the sheets under what stands on a surface
