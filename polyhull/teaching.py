@@ -268,13 +268,24 @@ def _window(
     recording: Recording, name: str, start: float | None, seconds: float, joints: bool
 ) -> Iterator[tuple[DepthFrame, JointSample | None]]:
     """The frames of camera ``name`` from ``start`` (its first frame when None) for
-    ``seconds``, each with the newest joint sample before it."""
+    ``seconds``, each with the joint sample nearest to it in time (the last one before it
+    or the first one after it)."""
     last: JointSample | None = None
+    waiting: list[DepthFrame] = []  # frames in the window, waiting for the next joint sample
     t0 = start
     events = recording.events((name,), joints=joints)
+
+    def nearest(frame: DepthFrame, after: JointSample | None) -> JointSample | None:
+        if last is None or (after is not None and after.stamp - frame.stamp < frame.stamp - last.stamp):
+            return after
+        return last
+
     try:
         for e in events:
             if isinstance(e, JointSample):
+                for f in waiting:
+                    yield f, nearest(f, e)
+                waiting.clear()
                 last = e
                 continue
             if t0 is None:
@@ -283,7 +294,12 @@ def _window(
                 continue
             if e.stamp > t0 + seconds:
                 break
-            yield e, last
+            if joints:
+                waiting.append(e)
+            else:
+                yield e, None
+        for f in waiting:
+            yield f, nearest(f, None)
     finally:
         close = getattr(events, "close", None)
         if close is not None:
@@ -343,7 +359,7 @@ def teach(
     found: list[CameraTeaching] = []
     for cam in depth_cams:
         stats = PixelStatistics(cam, max_samples)
-        bar = tqdm(desc=f"teach {cam.name}", unit="frame", disable=not progress, leave=False)
+        bar = tqdm(desc=f"teach {cam.name}", unit="frame", disable=None if progress else True, leave=False)
         try:
             for frame, sample in _window(recording, cam.name, start, seconds, masker is not None):
                 if start is None:

@@ -7,10 +7,14 @@ import json
 import math
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, TYPE_CHECKING
 
 from ..errors import PolyhullError
+
+if TYPE_CHECKING:
+    from ..recordings import Cycle
 
 __all__ = ["register"]
 
@@ -33,8 +37,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--json-lines", type=Path, metavar="OUT", help="write one JSON object per cycle ('-': stdout)")
     p.add_argument("--fast", action="store_true", help="as fast as possible instead of at recorded pace")
     p.add_argument("--joints", type=Path, metavar="CSV", help="joint states from this CSV instead of the recording")
+    p.add_argument("--seconds", type=float, metavar="S", help="replay only the first S seconds of the recording")
     p.add_argument("--json", action="store_true", help="print a JSON summary (everything else on stderr)")
     p.set_defaults(func=_run)
+
+
+def _first_seconds(cycles: Iterator[Cycle], seconds: float) -> Iterator[Cycle]:
+    """The cycles within ``seconds`` [s] of the first one."""
+    first: float | None = None
+    for cycle in cycles:
+        first = cycle.stamp if first is None else first
+        if cycle.stamp - first > seconds + 1e-6:
+            return
+        yield cycle
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -50,6 +65,8 @@ def _run(args: argparse.Namespace) -> int:
     log = sys.stderr if (args.json or to_stdout) else sys.stdout
     if args.json and to_stdout:
         raise PolyhullError("--json and --json-lines - both want stdout; write the lines to a file")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise PolyhullError(f"--seconds must be a time > 0 s, got {args.seconds}")
     cell = load_cell(args.cell)
     recording = open_recording(args.recording, cell, joints_csv=args.joints)
     names = tuple(c.name for c in cell.cameras)
@@ -70,15 +87,18 @@ def _run(args: argparse.Namespace) -> int:
                 raise PolyhullError(f"--json-lines {args.json_lines}: cannot write ({exc})") from None
     print(f"building the monitor of {cell.name} ...", file=sys.stderr, flush=True)
     monitor = Monitor(cell)
-    total = recording.frame_count(recording.cameras[0])
+    total = recording.frame_count(recording.cameras[0]) if args.seconds is None else None
     distances, scales, cycle_ms = [], [], []
     n_faulted = 0
     first_fault: str | None = None
     t0 = time.perf_counter()
     n = 0
     try:
-        with tqdm(total=total, unit="cycle", desc="replay", file=sys.stderr) as bar:
-            for cycle, verdict in replay(monitor, recording_cycles(recording, cell), fast=args.fast):
+        with tqdm(total=total, unit="cycle", desc="replay", file=sys.stderr, disable=None) as bar:
+            cycles = recording_cycles(recording, cell)
+            if args.seconds is not None:
+                cycles = _first_seconds(cycles, args.seconds)
+            for cycle, verdict in replay(monitor, cycles, fast=args.fast):
                 record = cycle_record(cycle, verdict, names)
                 if out is not None:
                     out.write(json.dumps(record) + "\n")
@@ -121,6 +141,4 @@ def _run(args: argparse.Namespace) -> int:
         print(f"faults          {n_faulted} of {n} cycles (first: {first_fault})", file=log)
     if args.json_lines is not None and not to_stdout:
         print(f"wrote {args.json_lines}", file=log)
-    if not math.isfinite(wall):
-        return 1
     return 0
