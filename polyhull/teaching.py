@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from .background import MIN_VALID_SHARE, TaughtBackground, TaughtCamera
+from .background import MIN_OBSERVED, MIN_VALID_SHARE, TaughtBackground, TaughtCamera
 from .camera import Camera
 from .cell import Cell
 from .errors import FrameError, PolyhullError
@@ -375,8 +375,12 @@ def teach(
             raise
         finally:
             bar.close()
-        if stats.frames == 0:
-            raise TeachingError(f"camera '{cam.name}': no frames with a joint state in the teaching window")
+        if stats.frames < MIN_OBSERVED:
+            raise TeachingError(
+                f"camera '{cam.name}': {stats.frames} frames in the teaching window"
+                f"{' with a joint state' if masker is not None else ''}, at least {MIN_OBSERVED} needed "
+                "(a longer --seconds?)"
+            )
         taught = stats.result(min_valid_share)
         found.append(_findings(cam, taught, references[cam.name]))
     for f in found:

@@ -125,6 +125,14 @@ def test_time_matching_within_max_age() -> None:
     # 0.13 was not used by the cycle at 0.10 (0.08 was nearer) nor reachable from 0.20 (0.07 away)
 
 
+def test_matched_frames_span_at_most_max_age() -> None:
+    """Frames 0.04 before and 0.04 after the lead are each within 0.05 of it but 0.08 apart:
+    the one farther from the lead is left out, so no frame of the cycle is stale."""
+    events = [_frame("b", -0.04), _frame("a", 0.0), _frame("c", 0.035), _frame("a", 0.5)]
+    got = list(cycles(events, ("a", "b", "c"), max_age=0.05))
+    assert sorted(got[0].frames) == ["a", "c"] and got[0].stamp == pytest.approx(0.035)
+
+
 def test_time_matching_without_joint_state_gives_none() -> None:
     got = list(cycles([_frame("a", 0.0), _frame("b", 0.01)], ("a", "b"), max_age=0.05))
     assert len(got) == 1 and got[0].q is None and got[0].q_stamp is None

@@ -4,7 +4,9 @@ The first camera (the *lead*, the cell's first camera present in the recording) 
 cycles: every lead frame starts one. Each other camera contributes the frame nearest in
 time to the lead frame, if one lies within ``max_age`` (``safety.max_frame_age``) of it
 and was not used by an earlier cycle; otherwise that camera is absent from the cycle,
-and the monitor reports it missing. The joint state of a cycle is the newest sample
+and the monitor reports it missing. The frames of a cycle span at most ``max_age`` (the
+ones farthest from the lead frame are dropped until they do), so none reaches the monitor
+stale. The joint state of a cycle is the newest sample
 measured at or before the cycle's stamp (the newest frame's), else the first one after.
 
 Streaming: frames are held only until the recording's clock has passed the lead frame by
@@ -59,6 +61,12 @@ def cycles(events: Iterable[Event], cameras: tuple[str, ...], max_age: float) ->
                 frames[name] = queue[best]
                 for _ in range(best + 1):
                     queue.popleft()  # used, or older than the one used
+        # The cycle's stamp is its newest frame: keep every frame within max_age of it (a
+        # set spanning more would reach the monitor with a stale frame), dropping the
+        # frames farthest from the lead first.
+        while max(f.stamp for f in frames.values()) - min(f.stamp for f in frames.values()) > max_age:
+            far = max((n for n in frames if n != lead), key=lambda n: abs(frames[n].stamp - t))
+            del frames[far]
         stamp = max(f.stamp for f in frames.values())
         sample = None
         for s in joints:
