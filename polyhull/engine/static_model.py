@@ -607,8 +607,8 @@ class StaticModel:
 
         The cache file is named by a digest of everything the model depends on: the
         cell's cameras, zone, obstacles (their meshes) and parameters, the reference
-        images, the taught background, and the cache format; any change gives a new name, so a stale entry can
-        never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
+        images, the taught background, and the cache format; any change gives a new name,
+        so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
         ``$XDG_CACHE_HOME/polyhull``, else ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off``
         disables it. Only models that took longer than ``CACHE_AFTER`` seconds are written.
         """
@@ -660,7 +660,9 @@ class StaticModel:
 
         with np.load(path, allow_pickle=False) as data:
             block = cell.reconstruction.block
-            cams = tuple(StaticCamera.build(c, references[c.name], block, _taught(cell, c.name)) for c in cell.cameras)
+            cams = tuple(
+                StaticCamera.build(c, references[c.name], block, _taught(cell, c.name)) for c in cell.cameras
+            )
             mf = {n: _manifold(data[f"{n}_v"], data[f"{n}_t"]) for n in ("hull", "region_r2", "region", "solids")}
             free = tuple(_manifold(data[f"free{i}_v"], data[f"free{i}_t"]) for i in range(len(cams)))
             removed = tuple(
