@@ -236,3 +236,23 @@ def test_cell_file_topic_key(small_cell: Cell) -> None:
     }
     with pytest.raises(CellError, match=r"x.toml: cameras\[0\].topic: expected a string"):
         cell_from_mapping(data, "x.toml")
+
+
+def test_big_endian_rows_with_padding_decode(small_cell: Cell) -> None:
+    """A 16UC1 image in big-endian byte order with 6 padding bytes per row reads correctly."""
+    from polyhull.recordings.rosbag import decode_depth_image
+
+    cam = small_cell.cameras[0]
+    H, W = cam.shape
+    depth = (np.arange(H * W, dtype=np.uint32) % 6000).astype(np.uint16).reshape(H, W)
+    rows = np.zeros((H, W * 2 + 6), dtype=np.uint8)
+    rows[:, : W * 2] = depth.astype(">u2").view(np.uint8).reshape(H, W * 2)
+
+    class Msg:
+        encoding = "16UC1"
+        is_bigendian = 1
+        height, width, step = H, W, W * 2 + 6
+        data = rows.ravel()
+
+    got = decode_depth_image(Msg(), cam, "t")
+    assert got.dtype == np.uint16 and np.array_equal(got, depth)

@@ -228,3 +228,22 @@ def test_dark_surface_dropouts_become_static(tmp_path: Path, small_cell: Cell, s
     assert not (segments(learned_images) & sw.static_invalid[DARK]).any()
     assert segments(learned_images).sum() <= 0.05 * dropped
     assert cad.counts["unexplained_pixels"] - learned.counts["unexplained_pixels"] >= 0.9 * dropped
+
+
+def test_a_moved_camera_disagrees_with_the_cad_model(small_cell: Cell) -> None:
+    """Teaching the PNG fixture against a cell in which camera sw sits 15 cm lower than where
+    it recorded: most of its pixels leave the CAD band, camera ne's do not."""
+    cams = list(small_cell.cameras)
+    T = np.array(cams[0].T_world_camera)
+    T[2, 3] -= 0.15
+    cams[0] = dataclasses.replace(cams[0], T_world_camera=T)
+    moved = dataclasses.replace(small_cell, cameras=tuple(cams))
+    result = teach(moved, open_recording(PNG, moved), seconds=1.1)
+    share = {c.camera: c.disagree_share for c in result.cameras}
+    assert share["sw"] is not None and share["sw"] > 0.3
+    assert share["ne"] is not None and share["ne"] < 0.02
+    sw = next(c for c in result.cameras if c.camera == "sw")
+    img = sw.heat_map()
+    assert img.shape == (240, 320, 3) and img.dtype == np.uint8
+    warm = (img[..., 0] == 255) & (img[..., 2] == 0)  # yellow to red: outside the band
+    assert warm.mean() == pytest.approx((sw.ratio[sw.compared] > 1).sum() / img[..., 0].size, abs=1e-9)
