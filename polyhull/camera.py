@@ -183,6 +183,9 @@ class Camera:
         noise: Depth noise standard deviation in [m] at 1 m; it grows with depth squared.
         tolerance_sigmas: The depth tolerance tau is this many standard deviations.
         tolerance_min: Floor of the depth tolerance in [m] (quantisation, calibration).
+        topic: The ``sensor_msgs/Image`` depth topic of this camera in ROS bags
+            (``/cam_ne/depth/image_raw``); its ``CameraInfo`` is read from ``camera_info``
+            in the same namespace. None: the camera name, as ``/<name>/depth/image_raw``.
     """
 
     name: str
@@ -194,6 +197,7 @@ class Camera:
     noise: float = 0.003
     tolerance_sigmas: float = 3.0
     tolerance_min: float = 0.01
+    topic: str | None = None
     _T_camera_world: Transform = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

@@ -15,6 +15,7 @@ import manifold3d as m3
 import numpy as np
 import trimesh
 
+from .background import TaughtBackground
 from .camera import Camera
 from .errors import CellError, GeometryError
 from .typed import ArrayBool, ArrayF64
@@ -144,6 +145,7 @@ class RobotSpec:
         padding: Margin [m] by which link geometry is grown when computing the robot
             occlusion M; it absorbs depth noise in front of robot surfaces. The monitor adds
             it to the protective separation distance, so it never makes the robot faster.
+        joint_state_topic: The ``sensor_msgs/JointState`` topic in ROS bags.
     """
 
     urdf: Path
@@ -151,6 +153,7 @@ class RobotSpec:
     base_yaw: float = 0.0
     q: tuple[float, ...] = ()
     padding: float = 0.05
+    joint_state_topic: str = "/joint_states"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "base", _finite_vec(self.base, 3, "robot.base"))
@@ -391,6 +394,8 @@ class Cell:
         plausibility: The R3 rules.
         mounting: Surfaces where the placement optimiser may put cameras.
         path: The cell file it was read from, if any.
+        background: The taught background (``polyhull teach``), if the cell file names one;
+            the static model uses it instead of the CAD reference where it is valid.
     """
 
     name: str
@@ -403,6 +408,7 @@ class Cell:
     plausibility: PlausibilityParams = PlausibilityParams()
     mounting: tuple[MountingSurface, ...] = ()
     path: Path | None = None
+    background: TaughtBackground | None = None
 
     def __post_init__(self) -> None:
         names = [c.name for c in self.cameras]

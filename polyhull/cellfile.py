@@ -33,6 +33,7 @@ from typing import Any, Literal, TypeVar
 import numpy as np
 import trimesh
 
+from .background import load_background
 from .camera import Camera, Intrinsics, look_at_rotation, quaternion_to_rotation
 from .cell import (
     Cell,
@@ -71,6 +72,7 @@ CELL_KEYS = (
     "reconstruction",
     "plausibility",
     "mounting",
+    "background",
 )
 
 # Camera dataclass fields that a [[cameras]] entry spells differently (type, range, the
@@ -690,6 +692,13 @@ def cell_from_mapping(data: Mapping[str, Any], path: str | os.PathLike[str]) -> 
         for i, t in enumerate(_tables(data.get("mounting", []), "mounting", src))
     )
     _unique_names(mounting, "mounting", src)
+    background = None
+    if "background" in data:
+        bg_path = src.file("background", data["background"], "taught background (.npz from polyhull teach)")
+        try:
+            background = load_background(bg_path, cameras)
+        except PolyhullError as exc:
+            raise src.fail("background", str(exc)) from None
     try:
         return Cell(
             name=name,
@@ -702,6 +711,7 @@ def cell_from_mapping(data: Mapping[str, Any], path: str | os.PathLike[str]) -> 
             plausibility=plausibility,
             mounting=mounting,
             path=file.resolve(),
+            background=background,
         )
     except PolyhullError as exc:
         raise src.fail("cell", str(exc)) from None

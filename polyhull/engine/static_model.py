@@ -46,6 +46,7 @@ import manifold3d as m3
 import numpy as np
 from scipy import ndimage
 
+from ..background import TaughtCamera
 from ..camera import Camera
 from ..cell import Cell, Obstacle
 from ..errors import FrameError
@@ -116,8 +117,16 @@ class StaticCamera:
     surface: ArrayF64
 
     @classmethod
-    def build(cls, camera: Camera, reference: np.ndarray, block: int) -> StaticCamera:
-        """The static data of ``camera`` from its reference depth (H, W) [m]."""
+    def build(
+        cls, camera: Camera, reference: np.ndarray, block: int, taught: TaughtCamera | None = None
+    ) -> StaticCamera:
+        """The static data of ``camera`` from its reference depth (H, W) [m].
+
+        With a taught background (``taught``), the taught median and band replace the
+        reference and band wherever the pixel was valid during teaching, and the pixels
+        that were not are static-invalid: they free nothing and are never a change
+        (:meth:`polyhull.background.TaughtCamera.band`).
+        """
         B = np.asarray(reference, dtype=np.float64)
         if B.shape != camera.shape:
             raise FrameError(
@@ -129,6 +138,9 @@ class StaticCamera:
             )
         width = 1.0 if camera.kind == "color" else CONSISTENT_BAND
         T, U = consistent_band(camera, B, width)
+        static_invalid = None
+        if taught is not None:
+            B, T, U, static_invalid = taught.band(camera, B, T, U, width)
         B_far = np.minimum(B, camera.far)
         # Beyond the range, or within the noise of its limit: the reading may be invalid.
         unsure = ~np.isfinite(B) | (B + width * camera.tau(B_far) > camera.far)
@@ -147,6 +159,8 @@ class StaticCamera:
                 # min over D in [T, U] of min(D, B) - tau(D): at D = T or D = U.
                 f_s = np.minimum(T - camera.tau(T), B - camera.tau(U))
         no_free = ndimage.maximum_filter(unsure, 3, mode="nearest")
+        if static_invalid is not None:
+            no_free |= static_invalid
         if camera.kind == "color":
             # A widened band admits readings the SPEC calls changed (D < T): free nothing.
             no_free |= T < T_spec
@@ -593,8 +607,8 @@ class StaticModel:
 
         The cache file is named by a digest of everything the model depends on: the
         cell's cameras, zone, obstacles (their meshes) and parameters, the reference
-        images, and the cache format; any change gives a new name, so a stale entry can
-        never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
+        images, the taught background, and the cache format; any change gives a new name,
+        so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
         ``$XDG_CACHE_HOME/polyhull``, else ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off``
         disables it. Only models that took longer than ``CACHE_AFTER`` seconds are written.
         """
@@ -646,7 +660,9 @@ class StaticModel:
 
         with np.load(path, allow_pickle=False) as data:
             block = cell.reconstruction.block
-            cams = tuple(StaticCamera.build(c, references[c.name], block) for c in cell.cameras)
+            cams = tuple(
+                StaticCamera.build(c, references[c.name], block, _taught(cell, c.name)) for c in cell.cameras
+            )
             mf = {n: _manifold(data[f"{n}_v"], data[f"{n}_t"]) for n in ("hull", "region_r2", "region", "solids")}
             free = tuple(_manifold(data[f"free{i}_v"], data[f"free{i}_t"]) for i in range(len(cams)))
             removed = tuple(
@@ -691,7 +707,7 @@ class StaticModel:
         for cam in cell.cameras:
             if cam.name not in references:
                 raise PolyhullError(f"no reference depth for camera '{cam.name}'")
-            cams.append(StaticCamera.build(cam, references[cam.name], block))
+            cams.append(StaticCamera.build(cam, references[cam.name], block, _taught(cell, cam.name)))
         zone = cell.zone.manifold()
         box = _zone_box(zone, 0.01)
         free = tuple(s.free_region() ^ box for s in cams)
@@ -745,6 +761,11 @@ class StaticModel:
         return _hull_contains(self.cameras, points_world, k_of_n)
 
 
+def _taught(cell: Cell, name: str) -> TaughtCamera | None:
+    """The taught background of camera ``name`` of ``cell``, if it has one."""
+    return None if cell.background is None else cell.background.get(name)
+
+
 def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of_n: int) -> np.ndarray:
     pts = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
     count = np.zeros(len(pts), dtype=np.int64)
@@ -784,6 +805,7 @@ def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
         h.update(np.ascontiguousarray(cam.T_world_camera, dtype=np.float64).tobytes())
         ref = references.get(cam.name)
         h.update(b"-" if ref is None else np.ascontiguousarray(ref, dtype=np.float64).tobytes())
+    h.update(b"no taught background" if cell.background is None else cell.background.digest())
     for o in cell.obstacles:
         h.update(repr((o.name, o.solid)).encode())
         h.update(np.ascontiguousarray(o.mesh.vertices, dtype=np.float64).tobytes())
