@@ -374,7 +374,7 @@ def compare(
 
     Returns:
         A JSON-ready dict: ``methods`` (polyhull, octomap_fresh, octomap_incremental), each
-        with ``cycle_ms`` (median, p99), ``volume_m3``, ``excess_percent`` against the
+        with ``cycle_ms`` (median, p99), OctoMap's ``stages_ms_median``, ``volume_m3``, ``excess_percent`` against the
         exact hull, ``exact_hull_free_m3``, ``person_free_percent``, ``robot_free_percent``,
         ``distance_m`` and ``true_minus_reported_m``; the ``speed_ratio`` of each OctoMap
         variant; the exact hull volume; the options.
@@ -396,7 +396,7 @@ def compare(
     rng = np.random.default_rng(seed)
     names = ("polyhull", *peers)
     rows: dict[str, dict[str, list[float]]] = {n: {} for n in names}
-    insert_ms: dict[str, list[float]] = {n: [] for n in peers}
+    stage_ms: dict[str, dict[str, list[float]]] = {n: {} for n in peers}
     exact_volumes: list[float] = []
     exact_person_free: list[float] = []
 
@@ -437,7 +437,8 @@ def compare(
 
             for name, peer in peers.items():
                 c = peer.step(frames, q)
-                insert_ms[name].append(c.timings["insert"])
+                for stage, ms in c.timings.items():
+                    stage_ms[name].setdefault(stage, []).append(ms)
                 occ = (peer.labels(p) != 0) & ~solid  # occupied or unknown: the map's C
                 add(name, "cycle_ms", c.timings["total"])
                 add(name, "volume_m3", zone * float(occ.mean()))
@@ -465,8 +466,8 @@ def compare(
             "true_minus_reported_m": float(np.median(gaps)) if np.isfinite(gaps).any() else math.nan,
             "cycles_reported_above_true": int(np.sum(gaps < -1e-6)),
         }
-        if name in insert_ms:
-            methods[name]["insert_ms_median"] = float(np.median(insert_ms[name]))
+        if name in stage_ms:
+            methods[name]["stages_ms_median"] = {k: float(np.median(x)) for k, x in stage_ms[name].items() if k != "total"}
     base = methods["polyhull"]["cycle_ms"]["median"]
     return {
         "cycles": len(inputs),
@@ -498,6 +499,13 @@ def _fmt(x: float | None, spec: str) -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
 
+def _pct(x: float | None) -> str:
+    """A share [%] with two decimals; a positive share below 0.005 % is "<0.01", not 0.00."""
+    if x is not None and 0.0 < x < 0.005:
+        return "<0.01"
+    return _fmt(x, ".2f")
+
+
 def format_table(result: Mapping[str, Any]) -> str:
     """The side-by-side table of :func:`compare` as text (one method per column)."""
     m = result["methods"]
@@ -507,13 +515,13 @@ def format_table(result: Mapping[str, Any]) -> str:
     rows: list[tuple[str, list[str]]] = [
         ("cycle median [ms]", [_fmt(m[n]["cycle_ms"]["median"], ".0f") for n in names]),
         ("cycle p99 [ms]", [_fmt(m[n]["cycle_ms"]["p99"], ".0f") for n in names]),
-        ("  of which insertion [ms]", ["-"] + [_fmt(m[n]["insert_ms_median"], ".0f") for n in names[1:]]),
+        ("  of which insertion [ms]", ["-"] + [_fmt(m[n]["stages_ms_median"]["insert"], ".0f") for n in names[1:]]),
         ("speed ratio (x polyhull)", ["1"] + [_fmt(result["speed_ratio"][n], ".1f") for n in names[1:]]),
         ("possibly occupied in Z [m^3]", [_fmt(m[n]["volume_m3"], ".1f") for n in names]),
         ("  vs exact hull [%]", [_fmt(m[n]["excess_percent"], "+.0f") for n in names]),
         ("exact hull marked free [m^3]", [_fmt(m[n]["exact_hull_free_m3"], ".2f") for n in names]),
-        ("person marked free [%] median", [_fmt(m[n]["person_free_percent"]["median"], ".2f") for n in names]),
-        ("person marked free [%] max", [_fmt(m[n]["person_free_percent"]["max"], ".2f") for n in names]),
+        ("person marked free [%] median", [_pct(m[n]["person_free_percent"]["median"]) for n in names]),
+        ("person marked free [%] max", [_pct(m[n]["person_free_percent"]["max"]) for n in names]),
         ("robot links marked free [%]", [_fmt(m[n]["robot_free_percent"], ".1f") for n in names]),
         ("min distance [m] median", [_fmt(m[n]["distance_m"], ".2f") for n in names]),
         ("true - reported [m] median", [_fmt(m[n]["true_minus_reported_m"], "+.2f") for n in names]),

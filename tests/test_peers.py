@@ -139,7 +139,9 @@ def test_one_cycle_on_the_small_cell_fills_the_table(peers_json: dict) -> None: 
         assert row["distance_m"] is None or row["distance_m"] >= 0
         assert isinstance(row["cycles_reported_above_true"], int)
     for name in ("octomap_fresh", "octomap_incremental"):
-        assert 0 < m[name]["insert_ms_median"] < m[name]["cycle_ms"]["median"]
+        stages = m[name]["stages_ms_median"]
+        assert set(stages) == {"clouds", "insert", "region", "distance"}
+        assert 0 < stages["insert"] < m[name]["cycle_ms"]["median"]
         assert r["speed_ratio"][name] == pytest.approx(m[name]["cycle_ms"]["median"] / m["polyhull"]["cycle_ms"]["median"])
     # the region polyhull's distance uses never claims to be farther than the person
     assert m["polyhull"]["cycles_reported_above_true"] == 0
