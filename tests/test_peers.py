@@ -150,6 +150,10 @@ def test_one_cycle_on_the_small_cell_fills_the_table(peers_json: dict) -> None: 
     assert m["polyhull"]["exact_hull_free_m3"] <= 0.005 * r["volume_exact_hull_m3"]
     assert m["octomap_fresh"]["exact_hull_free_m3"] > m["polyhull"]["exact_hull_free_m3"]
     assert 0.0 <= r["exact_hull_person_free_percent"]["median"] <= 100.0
+    assert r["true_distance_m"]["median"] > 0
+    for name, row in m.items():  # reported + (true - reported) is the true distance
+        if row["distance_m"] is not None:
+            assert row["distance_m"] + row["true_minus_reported_m"] == pytest.approx(r["true_distance_m"]["median"]), name
     # after one cycle the incremental tree is the fresh one
     for key in ("volume_m3", "exact_hull_free_m3", "robot_free_percent", "distance_m"):
         assert m["octomap_incremental"][key] == m["octomap_fresh"][key], key
