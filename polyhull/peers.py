@@ -18,7 +18,7 @@ What a user would otherwise build, the way MoveIt's occupancy map monitor does i
   engine's own link models), minus half a voxel diagonal, so that it is a lower bound of
   the distance to anything inside the voxels.
 
-:func:`compare` runs this next to the monitor's verdicts on the same frames and reports
+:class:`PeerComparison` runs this next to the monitor's verdicts on the same frames and reports
 speed, tightness against the exact depth hull and conservativeness (the share of the
 person's interior and of the robot's links that each method marks free).
 """
@@ -26,7 +26,6 @@ person's interior and of the robot's links that each method marks free).
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -45,7 +44,7 @@ __all__ = [
     "PeerCycle",
     "require_octomap",
     "frame_clouds",
-    "compare",
+    "PeerComparison",
     "format_table",
 ]
 
@@ -348,146 +347,173 @@ def _summary(values: Sequence[float]) -> dict[str, float]:
     }
 
 
-def compare(
-    monitor: Any,
-    inputs: Sequence[tuple[Mapping[str, Any], ArrayF64, float, Any]],
-    verdicts: Sequence[Any],
-    exact_hull: Callable[[Mapping[str, Any], ArrayF64], tuple[ArrayBool, ArrayBool]],
-    *,
-    options: OctomapOptions | None = None,
-    samples: int = 100_000,
-    seed: int = 0,
-    progress: bool = False,
-) -> dict[str, Any]:
-    """polyhull's verdicts against OctoMap (fresh and incremental) on the same frames.
+class PeerComparison:
+    """polyhull's verdicts against OctoMap (a fresh and an incremental tree) on the same frames.
 
-    Args:
-        monitor: The monitor that produced ``verdicts`` (cell, static model, robot).
-        inputs: Per cycle (frames, q, stamp, person mesh), consecutive cycles.
-        verdicts: The monitor's verdict of each of those cycles.
+    Feed it each compared cycle right after the monitor's step on those frames
+    (:meth:`add`), so that both are timed alternately under the same machine load; then
+    read :meth:`result`. The figures other than the timings are computed in :meth:`add`,
+    after both methods ran.
+    """
+
+    def __init__(
+        self,
+        monitor: Any,
+        exact_hull: Callable[[Mapping[str, Any], ArrayF64], tuple[ArrayBool, ArrayBool]],
+        *,
+        options: OctomapOptions | None = None,
+        samples: int = 100_000,
+        seed: int = 0,
+    ) -> None:
+        """Args:
+        monitor: The monitor whose verdicts are compared (cell, static model, robot).
         exact_hull: ``(frames, points) -> (in exact C, in a solid obstacle)``: the bench's
             exact depth hull oracle.
         options: How OctoMap is run.
-        samples: Points sampled in Z for the volumes (Monte-Carlo, the same points for all).
+        samples: Points sampled in Z per cycle for the volumes (Monte-Carlo, the same
+            points for every method).
         seed: Seed of the samples.
-        progress: Show a progress bar on stderr (on a terminal).
 
-    Returns:
-        A JSON-ready dict: ``methods`` (polyhull, octomap_fresh, octomap_incremental), each
-        with ``cycle_ms`` (median, p99), OctoMap's ``stages_ms_median``, ``volume_m3``, ``excess_percent`` against the
-        exact hull, ``exact_hull_free_m3``, ``person_free_percent``, ``robot_free_percent``,
-        ``distance_m`` and ``true_minus_reported_m``; the ``speed_ratio`` of each OctoMap
-        variant; the exact hull's volume and person free share; the person's true distance;
-        the options.
-    """
-    from tqdm import tqdm
-
-    from .cell import mesh_to_manifold
-    from .distance import points_in_hexahedra
-
-    if len(inputs) != len(verdicts) or not inputs:
-        raise PolyhullError("the peer comparison needs one verdict per cycle, and at least one cycle")
-    options = options or OctomapOptions()
-    robot, distance_model = monitor.robot, monitor._distance_model
-    peers = {"octomap_fresh": OctomapPeer(monitor, options), "octomap_incremental": OctomapPeer(monitor, options, incremental=True)}
-    cell = monitor.cell
-    k_of_n = cell.reconstruction.k_of_n
-    lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
-    zone = float(cell.zone.volume)
-    rng = np.random.default_rng(seed)
-    names = ("polyhull", *peers)
-    rows: dict[str, dict[str, list[float]]] = {n: {} for n in names}
-    stage_ms: dict[str, dict[str, list[float]]] = {n: {} for n in peers}
-    exact_volumes: list[float] = []
-    exact_person_free: list[float] = []
-    true_distances: list[float] = []
-
-    def add(method: str, key: str, value: float) -> None:
-        rows[method].setdefault(key, []).append(value)
-
-    bar = tqdm(total=len(inputs) * 3, desc="peers", file=sys.stderr, disable=None if progress else True, leave=False)
-    with bar:
-        for (frames, q, _, person), v in zip(inputs, verdicts, strict=True):
-            T_links = robot.link_transforms(q)
-            p = rng.uniform(lo, hi, size=(samples, 3))
-            exact, solid = exact_hull(frames, p)
-            exact_volumes.append(zone * float(exact.mean()))
-            person_pts = _sample_inside(person, PERSON_SAMPLES, rng)
-            person_pts = person_pts[np.all((person_pts >= lo) & (person_pts <= hi), axis=1)]  # in Z
-            exact_person, _ = exact_hull(frames, person_pts)
-            exact_person_free.append(100.0 * float((~exact_person).mean()))
-            links = robot.link_meshes(q)
-            link_pts = np.concatenate([_sample_inside(m, PERSON_SAMPLES // max(len(links), 1), rng) for m in links.values()])
-            true = distance_model.distance(T_links, region=mesh_to_manifold(person, "person")).distance
-            true_distances.append(true)
-
-            # polyhull: C by its point oracles, R3 (the region the distance uses) exactly
-            geo = v._geometry
-            if geo is None:
-                raise PolyhullError(f"the monitor gave no region in the peer cycle at t = {v.stamp} s: {v.faults}")
-            in_c = (monitor.static.hull_contains(p, k_of_n) | points_in_hexahedra(p, geo.full_pieces())) & ~solid
-            person_m = mesh_to_manifold(person, "person") ^ geo.zone  # the person's part in Z
-            outside = person_m - v.region
-            add("polyhull", "cycle_ms", float(v.timings["total"]))
-            add("polyhull", "volume_m3", zone * float(in_c.mean()))
-            add("polyhull", "exact_hull_free_m3", zone * float((exact & ~in_c).mean()))
-            add("polyhull", "person_free_percent", 100.0 * outside.volume() / person_m.volume())
-            robot_in_c = monitor.static.hull_contains(link_pts, k_of_n) | points_in_hexahedra(link_pts, geo.full_pieces())
-            add("polyhull", "robot_free_percent", 100.0 * float((~robot_in_c).mean()))
-            add("polyhull", "distance_m", float(v.min_distance))
-            add("polyhull", "true_minus_reported_m", true - float(v.min_distance))
-            bar.update()
-
-            for name, peer in peers.items():
-                c = peer.step(frames, q)
-                for stage, ms in c.timings.items():
-                    stage_ms[name].setdefault(stage, []).append(ms)
-                occ = (peer.labels(p) != 0) & ~solid  # occupied or unknown: the map's C
-                add(name, "cycle_ms", c.timings["total"])
-                add(name, "volume_m3", zone * float(occ.mean()))
-                add(name, "exact_hull_free_m3", zone * float((exact & ~occ).mean()))
-                add(name, "person_free_percent", 100.0 * float((~peer.in_region(person_pts, T_links)).mean()))
-                add(name, "robot_free_percent", 100.0 * float((peer.labels(link_pts) == 0).mean()))
-                add(name, "distance_m", c.min_distance)
-                add(name, "true_minus_reported_m", true - c.min_distance)
-                bar.update()
-
-    exact_median = float(np.median(exact_volumes))
-    methods: dict[str, Any] = {}
-    for name in names:
-        r = rows[name]
-        vol = float(np.median(r["volume_m3"]))
-        gaps = np.asarray(r["true_minus_reported_m"])
-        methods[name] = {
-            "cycle_ms": {k: x for k, x in _summary(r["cycle_ms"]).items() if k in ("median", "p99")},
-            "volume_m3": vol,
-            "excess_percent": 100.0 * (vol / exact_median - 1.0) if exact_median > 0 else math.inf,
-            "exact_hull_free_m3": float(np.median(r["exact_hull_free_m3"])),
-            "person_free_percent": _summary(r["person_free_percent"]),
-            "robot_free_percent": float(np.median(r["robot_free_percent"])),
-            "distance_m": float(np.median(r["distance_m"])),
-            "true_minus_reported_m": float(np.median(gaps)) if np.isfinite(gaps).any() else math.nan,
-            "cycles_reported_above_true": int(np.sum(gaps < -1e-6)),
+        Raises:
+            MissingExtraError: octomap-python is not installed.
+            PolyhullError: the cell has no robot.
+        """
+        self.options = options or OctomapOptions()
+        self._monitor = monitor
+        self._exact_hull = exact_hull
+        self._samples = samples
+        self._peers = {
+            "octomap_fresh": OctomapPeer(monitor, self.options),
+            "octomap_incremental": OctomapPeer(monitor, self.options, incremental=True),
         }
-        if name in stage_ms:
-            methods[name]["stages_ms_median"] = {k: float(np.median(x)) for k, x in stage_ms[name].items() if k != "total"}
-    base = methods["polyhull"]["cycle_ms"]["median"]
-    return {
-        "cycles": len(inputs),
-        "samples": samples,
-        "options": {
-            "library": f"octomap-python {_version()}",
-            "resolution_m": options.resolution,
-            "discretize": options.discretize,
-            "lazy_eval": options.lazy_eval,
-            "self_filter_padding_m": float(monitor._padding),
-        },
-        "volume_exact_hull_m3": exact_median,
-        "exact_hull_person_free_percent": _summary(exact_person_free),
-        "true_distance_m": _summary(true_distances),
-        "methods": methods,
-        "speed_ratio": {n: methods[n]["cycle_ms"]["median"] / base if base > 0 else math.inf for n in peers},
-    }
+        self._rng = np.random.default_rng(seed)
+        self._names = ("polyhull", *self._peers)
+        self._rows: dict[str, dict[str, list[float]]] = {n: {} for n in self._names}
+        self._stage_ms: dict[str, dict[str, list[float]]] = {n: {} for n in self._peers}
+        self._exact_volumes: list[float] = []
+        self._exact_person_free: list[float] = []
+        self._true_distances: list[float] = []
+
+    def _add(self, method: str, key: str, value: float) -> None:
+        self._rows[method].setdefault(key, []).append(value)
+
+    def add(self, frames: Mapping[str, Any], q: ArrayF64, person: Any, verdict: Any) -> None:
+        """One cycle: OctoMap on ``frames`` (timed), then every figure of both methods.
+
+        Args:
+            frames: The frames the monitor's ``verdict`` came from.
+            q: The joint positions of that cycle [rad].
+            person: The person's mesh (world frame, watertight) in those frames.
+            verdict: The monitor's verdict on those frames.
+        """
+        from .cell import mesh_to_manifold
+        from .distance import points_in_hexahedra
+
+        geo = verdict._geometry
+        if geo is None:
+            raise PolyhullError(f"the monitor gave no region in the peer cycle at t = {verdict.stamp} s: {verdict.faults}")
+        cycles = {name: peer.step(frames, q) for name, peer in self._peers.items()}  # right after polyhull's
+
+        monitor, rng = self._monitor, self._rng
+        robot, distance_model = monitor.robot, monitor._distance_model
+        cell = monitor.cell
+        k_of_n = cell.reconstruction.k_of_n
+        lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
+        zone = float(cell.zone.volume)
+        T_links = robot.link_transforms(q)
+        p = rng.uniform(lo, hi, size=(self._samples, 3))
+        exact, solid = self._exact_hull(frames, p)
+        self._exact_volumes.append(zone * float(exact.mean()))
+        person_pts = _sample_inside(person, PERSON_SAMPLES, rng)
+        person_pts = person_pts[np.all((person_pts >= lo) & (person_pts <= hi), axis=1)]  # in Z
+        exact_person, _ = self._exact_hull(frames, person_pts)
+        self._exact_person_free.append(100.0 * float((~exact_person).mean()))
+        links = robot.link_meshes(q)
+        link_pts = np.concatenate([_sample_inside(m, PERSON_SAMPLES // max(len(links), 1), rng) for m in links.values()])
+        true = distance_model.distance(T_links, region=mesh_to_manifold(person, "person")).distance
+        self._true_distances.append(true)
+
+        # polyhull: C by its point oracles; R3 (the region its distance uses) exactly
+        full = geo.full_pieces()
+        in_c = (monitor.static.hull_contains(p, k_of_n) | points_in_hexahedra(p, full)) & ~solid
+        person_m = mesh_to_manifold(person, "person") ^ geo.zone  # the person's part in Z
+        outside = person_m - verdict.region
+        robot_in_c = monitor.static.hull_contains(link_pts, k_of_n) | points_in_hexahedra(link_pts, full)
+        self._add("polyhull", "cycle_ms", float(verdict.timings["total"]))
+        self._add("polyhull", "volume_m3", zone * float(in_c.mean()))
+        self._add("polyhull", "exact_hull_free_m3", zone * float((exact & ~in_c).mean()))
+        self._add("polyhull", "person_free_percent", 100.0 * outside.volume() / person_m.volume())
+        self._add("polyhull", "robot_free_percent", 100.0 * float((~robot_in_c).mean()))
+        self._add("polyhull", "distance_m", float(verdict.min_distance))
+        self._add("polyhull", "true_minus_reported_m", true - float(verdict.min_distance))
+
+        for name, peer in self._peers.items():
+            c = cycles[name]
+            for stage, ms in c.timings.items():
+                self._stage_ms[name].setdefault(stage, []).append(ms)
+            occ = (peer.labels(p) != 0) & ~solid  # occupied or unknown: the map's C
+            self._add(name, "cycle_ms", c.timings["total"])
+            self._add(name, "volume_m3", zone * float(occ.mean()))
+            self._add(name, "exact_hull_free_m3", zone * float((exact & ~occ).mean()))
+            self._add(name, "person_free_percent", 100.0 * float((~peer.in_region(person_pts, T_links)).mean()))
+            self._add(name, "robot_free_percent", 100.0 * float((peer.labels(link_pts) == 0).mean()))
+            self._add(name, "distance_m", c.min_distance)
+            self._add(name, "true_minus_reported_m", true - c.min_distance)
+
+    def result(self) -> dict[str, Any]:
+        """The figures over the cycles added, JSON-ready.
+
+        ``methods`` (polyhull, octomap_fresh, octomap_incremental), each with ``cycle_ms``
+        (median, p99), OctoMap's ``stages_ms_median``, ``volume_m3``, ``excess_percent``
+        against the exact hull, ``exact_hull_free_m3``, ``person_free_percent``,
+        ``robot_free_percent``, ``distance_m``, ``true_minus_reported_m`` and
+        ``cycles_reported_above_true``; the ``speed_ratio`` of each OctoMap variant; the exact
+        hull's volume and person free share; the person's true distance; the options.
+
+        Raises:
+            PolyhullError: no cycle was added.
+        """
+        if not self._exact_volumes:
+            raise PolyhullError("the peer comparison needs at least one cycle")
+        exact_median = float(np.median(self._exact_volumes))
+        methods: dict[str, Any] = {}
+        for name in self._names:
+            r = self._rows[name]
+            vol = float(np.median(r["volume_m3"]))
+            gaps = np.asarray(r["true_minus_reported_m"])
+            methods[name] = {
+                "cycle_ms": {k: x for k, x in _summary(r["cycle_ms"]).items() if k in ("median", "p99")},
+                "volume_m3": vol,
+                "excess_percent": 100.0 * (vol / exact_median - 1.0) if exact_median > 0 else math.inf,
+                "exact_hull_free_m3": float(np.median(r["exact_hull_free_m3"])),
+                "person_free_percent": _summary(r["person_free_percent"]),
+                "robot_free_percent": float(np.median(r["robot_free_percent"])),
+                "distance_m": float(np.median(r["distance_m"])),
+                "true_minus_reported_m": float(np.median(gaps)) if np.isfinite(gaps).any() else math.nan,
+                "cycles_reported_above_true": int(np.sum(gaps < -1e-6)),
+            }
+            if name in self._stage_ms:
+                methods[name]["stages_ms_median"] = {
+                    k: float(np.median(x)) for k, x in self._stage_ms[name].items() if k != "total"
+                }
+        base = methods["polyhull"]["cycle_ms"]["median"]
+        o = self.options
+        return {
+            "cycles": len(self._exact_volumes),
+            "samples": self._samples,
+            "options": {
+                "library": f"octomap-python {_version()}",
+                "resolution_m": o.resolution,
+                "discretize": o.discretize,
+                "lazy_eval": o.lazy_eval,
+                "self_filter_padding_m": float(self._monitor._padding),
+            },
+            "volume_exact_hull_m3": exact_median,
+            "exact_hull_person_free_percent": _summary(self._exact_person_free),
+            "true_distance_m": _summary(self._true_distances),
+            "methods": methods,
+            "speed_ratio": {n: methods[n]["cycle_ms"]["median"] / base if base > 0 else math.inf for n in self._peers},
+        }
 
 
 def _version() -> str:
@@ -511,7 +537,7 @@ def _pct(x: float | None) -> str:
 
 
 def format_table(result: Mapping[str, Any]) -> str:
-    """The side-by-side table of :func:`compare` as text (one method per column)."""
+    """The side-by-side table of :meth:`PeerComparison.result` as text (one method per column)."""
     m = result["methods"]
     names = ("polyhull", "octomap_fresh", "octomap_incremental")
     heads = ("polyhull", "OctoMap fresh", "OctoMap incr.")

@@ -92,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         default=0,
         metavar="N",
         help="also run OctoMap (fresh and incremental tree) on the last N timed cycles' frames and print "
-        "the side-by-side table (N = 3 without a value; about 5 s per cycle; needs the 'peers' extra)",
+        "the side-by-side table (N = 3 without a value; 5 to 10 s per cycle and tree; needs the 'peers' extra)",
     )
     p.add_argument("--peers-resolution", type=float, default=0.05, metavar="M", help="OctoMap voxel size [m] (default 0.05)")
     p.add_argument(
@@ -331,10 +331,21 @@ def run_bench(
             bar.update()
     stages: dict[str, list[float]] = {}
     verdicts = []
+    comparison = None  # OctoMap on the last ``peers`` timed cycles, alternating with the monitor
+    if peers > 0:
+        from ..peers import PeerComparison
+
+        comparison = PeerComparison(
+            monitor, lambda frames, points: exact_hull(monitor, frames, points),
+            options=peers_options, samples=tightness_samples or 100_000, seed=seed,
+        )
     with _progress(n, "cycles", progress) as bar:
-        for k, (frames, q, t, _) in enumerate(inputs):
+        for k, (frames, q, t, person) in enumerate(inputs):
             v = monitor.step(frames, q, stamp=t)
             verdicts.append(v)
+            if comparison is not None and k >= n - min(peers, cycles):
+                bar.set_postfix_str("and OctoMap")
+                comparison.add(frames, q, person, v)
             if k >= warmup:
                 for stage, ms in v.timings.items():
                     stages.setdefault(stage, []).append(ms)
@@ -356,17 +367,6 @@ def run_bench(
     tightness = None
     if tightness_samples > 0 and verdicts[-1]._geometry is not None:
         tightness = tightness_and_misses(monitor, inputs[-1][0], verdicts[-1], tightness_samples, seed)
-    # 3b. OctoMap on the frames of the last ``peers`` timed cycles (polyhull.peers)
-    peers_result = None
-    if peers > 0:
-        from ..peers import compare
-
-        last = range(n - min(peers, cycles), n)
-        peers_result = compare(
-            monitor, [inputs[k] for k in last], [verdicts[k] for k in last],
-            lambda frames, points: exact_hull(monitor, frames, points),
-            options=peers_options, samples=tightness_samples or 100_000, seed=seed, progress=progress,
-        )
     del inputs
 
     # 4. the empty cell: the robot moving, every sensor effect on
@@ -432,7 +432,7 @@ def run_bench(
         },
         "tightness": tightness,
         "empty_cell": empty,
-        "peers": peers_result,
+        "peers": None if comparison is None else comparison.result(),
     }
 
 
