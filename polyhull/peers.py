@@ -279,6 +279,8 @@ class OctomapPeer:
 
     def labels(self, points_world: ArrayF64) -> np.ndarray:
         """OctoMap's label of each point's voxel in the current tree: -1 unknown, 0 free, 1 occupied."""
+        if self.tree is None:
+            raise PolyhullError("OctomapPeer.labels: no tree yet; call step(frames, q) first")
         p = np.ascontiguousarray(np.asarray(points_world, dtype=np.float64).reshape(-1, 3))
         return np.asarray(self.tree.getLabels(p))
 
