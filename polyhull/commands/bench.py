@@ -10,7 +10,9 @@ Four parts, on one monitor (the static model is built once):
 3. tightness and misses on the last person cycle, by a Monte-Carlo point oracle: the exact
    depth hull C of the cycle's frames against the engine's region R2;
 4. the empty cell: nobody present, the robot moving, every sensor effect on: the dynamic
-   pieces kept, and whether the distance departs from the static region's own distance.
+   pieces kept, and whether the distance departs from the static region's own distance;
+5. with ``--peers N``: OctoMap on the frames of the last N timed cycles, side by side with
+   the verdicts (:mod:`polyhull.peers`, the optional ``peers`` extra).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import json
 import math
 import re
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -82,6 +84,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--resolution", default=None, metavar="WxH", help="rescale every camera's intrinsics to W x H px"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor effects and the samples (default 0)")
+    p.add_argument(
+        "--peers",
+        type=int,
+        nargs="?",
+        const=3,
+        default=0,
+        metavar="N",
+        help="also run OctoMap (fresh and incremental tree) on the last N timed cycles' frames and print "
+        "the side-by-side table (N = 3 without a value; 5 to 10 s per cycle and tree; needs the 'peers' extra)",
+    )
+    p.add_argument("--peers-resolution", type=float, default=0.05, metavar="M", help="OctoMap voxel size [m] (default 0.05)")
+    p.add_argument(
+        "--peers-full-rays",
+        action="store_true",
+        help="OctoMap casts every point's own ray (as MoveIt does) instead of one per voxel (discretize, the faster)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object and nothing else")
     p.set_defaults(func=_run)
 
@@ -161,11 +179,33 @@ def _in_pieces(points: np.ndarray, pieces: np.ndarray) -> np.ndarray:
     return out
 
 
+def exact_hull(monitor: Any, frames: Mapping[str, Any], points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P,) whether each point lies in the exact depth hull C of the frames (outside the solid
+    obstacles), and (P,) whether it lies in a solid obstacle.
+
+    A point frees in a camera when in the image, ``z >= near`` and ``z <= f[v, u]`` with the
+    exact per-pixel free depth f; it is in C when fewer than k cameras free it.
+    """
+    from ..regions import free_depth
+
+    cell = monitor.cell
+    freed = np.zeros(len(points), dtype=np.int64)
+    for s in monitor.static.cameras:
+        cam = s.camera
+        u, v, z, inside = _pixels(cam, points)
+        f = free_depth(cam, frames[cam.name].depth, s.reference)
+        freed += inside & (z >= cam.near) & (z <= f[v, u])
+    solid = np.zeros(len(points), dtype=bool)
+    for o in cell.solid_obstacles:  # boxes
+        b = o.mesh.bounds
+        solid |= np.all((points >= b[0]) & (points <= b[1]), axis=1)
+    return (freed < cell.reconstruction.k_of_n) & ~solid, solid
+
+
 def tightness_and_misses(monitor: Any, frames: dict, verdict: Any, samples: int, seed: int) -> dict[str, Any]:  # type: ignore[type-arg]
     """Monte-Carlo comparison of the exact depth hull C with the engine's R2 (last cycle).
 
-    - exact C: points that fewer than k cameras free with the exact per-pixel free depth
-      (a point frees in a camera when in the image, ``z >= near`` and ``z <= f[v, u]``);
+    - exact C: :func:`exact_hull`;
     - engine R2: C_static (the static model's point oracle) outside the solid obstacles,
       or inside one of the cycle's dynamic pieces (before the plausibility rules);
     - padded robot shadow: for some camera the point falls on a pixel the padded robot
@@ -175,27 +215,17 @@ def tightness_and_misses(monitor: Any, frames: dict, verdict: Any, samples: int,
     exact-C points outside R2 and outside the padded robot shadow (must be 0);
     ``misses_unexcused`` counts them without the shadow excuse.
     """
-    from ..regions import free_depth
-
     cell = monitor.cell
     k = cell.reconstruction.k_of_n
     lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
     p = np.random.default_rng(seed).uniform(lo, hi, size=(samples, 3))
-    freed = np.zeros(samples, dtype=np.int64)
+    exact, solid = exact_hull(monitor, frames, p)
     shadow = np.zeros(samples, dtype=bool)
     for s in monitor.static.cameras:
-        cam = s.camera
-        u, v, z, inside = _pixels(cam, p)
-        f = free_depth(cam, frames[cam.name].depth, s.reference)
-        freed += inside & (z >= cam.near) & (z <= f[v, u])
-        r = monitor.last_images.raster.get(cam.name)
+        r = monitor.last_images.raster.get(s.camera.name)
         if r is not None:
+            u, v, z, inside = _pixels(s.camera, p)
             shadow |= inside & r.covered[v, u] & (z >= r.shadow_start[v, u])
-    solid = np.zeros(samples, dtype=bool)
-    for o in cell.solid_obstacles:  # boxes
-        b = o.mesh.bounds
-        solid |= np.all((p >= b[0]) & (p <= b[1]), axis=1)
-    exact = (freed < k) & ~solid
     r2 = (monitor.static.hull_contains(p, k) & ~solid) | _in_pieces(p, verdict._geometry.pieces)
     zone = cell.zone.volume
     v_exact = zone * float(exact.mean())
@@ -252,6 +282,8 @@ def run_bench(
     resolution: tuple[int, int] | None = None,
     seed: int = 0,
     progress: bool = False,
+    peers: int = 0,
+    peers_options: Any = None,
 ) -> dict[str, Any]:
     """Run the benchmark and its checks; return the figures (see the module docstring).
 
@@ -299,10 +331,21 @@ def run_bench(
             bar.update()
     stages: dict[str, list[float]] = {}
     verdicts = []
+    comparison = None  # OctoMap on the last ``peers`` timed cycles, alternating with the monitor
+    if peers > 0:
+        from ..peers import PeerComparison
+
+        comparison = PeerComparison(
+            monitor, lambda frames, points: exact_hull(monitor, frames, points),
+            options=peers_options, samples=tightness_samples or 100_000, seed=seed,
+        )
     with _progress(n, "cycles", progress) as bar:
-        for k, (frames, q, t, _) in enumerate(inputs):
+        for k, (frames, q, t, person) in enumerate(inputs):
             v = monitor.step(frames, q, stamp=t)
             verdicts.append(v)
+            if comparison is not None and k >= n - min(peers, cycles):
+                bar.set_postfix_str("and OctoMap")
+                comparison.add(frames, q, person, v)
             if k >= warmup:
                 for stage, ms in v.timings.items():
                     stages.setdefault(stage, []).append(ms)
@@ -389,6 +432,7 @@ def run_bench(
         },
         "tightness": tightness,
         "empty_cell": empty,
+        "peers": None if comparison is None else comparison.result(),
     }
 
 
@@ -417,6 +461,8 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError(f"--cameras must be in 1..{MAX_CAMERAS}, got {args.cameras}")
     if args.seed < 0:
         raise PolyhullError(f"--seed must be >= 0, got {args.seed}")
+    if args.peers < 0:
+        raise PolyhullError(f"--peers must be >= 0 cycles, got {args.peers}")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 
@@ -426,11 +472,17 @@ def _fmt(x: float | None, spec: str = ".3f") -> str:
 
 def _run(args: argparse.Namespace) -> int:
     resolution = _check(args)
+    peers_options = None
+    if args.peers:
+        from ..peers import OctomapOptions, require_octomap
+
+        require_octomap()  # before any work: a missing extra is one line
+        peers_options = OctomapOptions(resolution=args.peers_resolution, discretize=not args.peers_full_rays)
     # anything the engine prints goes to stderr: with --json, stdout holds the object only
     with contextlib.redirect_stdout(sys.stderr):
         result = run_bench(
             args.cell, args.cycles, args.warmup, args.empty_cycles, args.tightness_samples,
-            args.cameras, resolution, args.seed, progress=True,
+            args.cameras, resolution, args.seed, progress=True, peers=args.peers, peers_options=peers_options,
         )
     if args.json:
         print(json.dumps(_finite(result), indent=2))
@@ -467,4 +519,8 @@ def _run(args: argparse.Namespace) -> int:
               f"{_fmt(e['speed_scale']['median'], '.2f')}, min {_fmt(e['speed_scale']['min'], '.2f')}")
         if e["faults"]:
             print(f"  faults: {'; '.join(e['faults'])}")
+    if result["peers"] is not None:
+        from ..peers import format_table
+
+        print(format_table(result["peers"]))
     return 0
