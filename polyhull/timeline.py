@@ -21,7 +21,7 @@ from typing import Any
 
 from .errors import MissingExtraError, PolyhullError
 
-__all__ = ["RECORD_KEYS", "record_of", "plot_timeline"]
+__all__ = ["RECORD_KEYS", "record_of", "plot_timeline", "timeline_figure"]
 
 # The keys of a record, in the order they are written.
 RECORD_KEYS = (
@@ -117,6 +117,24 @@ def plot_timeline(
         raise PolyhullError(f"{path}: the timeline plot is written as PNG; give a path ending in .png")
     if len(records) == 0:
         raise PolyhullError(f"{path}: no timeline record to plot (the run has no cycle)")
+    fig = timeline_figure(records, title=title)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, format="png")
+    except OSError as exc:
+        raise PolyhullError(f"{path}: cannot write the timeline plot ({exc})") from exc
+    return path
+
+
+def timeline_figure(records: Sequence[Mapping[str, Any]], *, title: str | None = None) -> Any:
+    """The matplotlib ``Figure`` of :func:`plot_timeline` (800 x 560 px), not written.
+
+    Its three axes, top to bottom: distances [m] (lines labelled "distance to the robot",
+    "protective separation S_p" and, dashed, "true distance (simulated)"), the speed scale
+    (faults marked "fault") and the cycle time [ms]. Records without a value leave gaps.
+    """
+    if len(records) == 0:
+        raise PolyhullError("no timeline record to plot (the run has no cycle)")
     stamps = _column(records, "stamp", required=True)
     if any(math.isnan(t) for t in stamps):
         raise PolyhullError("timeline records: every 'stamp' must be a finite time [s]")
@@ -131,6 +149,7 @@ def plot_timeline(
     except ImportError as exc:
         raise MissingExtraError("the timeline plot", "placement") from exc
 
+    # A Figure without pyplot: no global backend or state is touched (Agg renders the PNG).
     fig = Figure(figsize=(8.0, 5.6), dpi=100)
     ax_d, ax_s, ax_c = fig.subplots(
         3, 1, sharex=True, gridspec_kw={"height_ratios": [2.2, 1.0, 1.0]}
@@ -143,9 +162,9 @@ def plot_timeline(
         ax_d.plot(stamps, true, color="k", linestyle="--", label="true distance (simulated)")
     ax_d.set_ylabel("distance [m]")
     ax_d.set_ylim(bottom=0.0)
-    ax_d.legend(fontsize=8, loc="best")
+    ax_d.legend(fontsize=8, loc="upper right")
 
-    ax_s.step(stamps, speed, where="post", color="C2")
+    ax_s.step(stamps, speed, where="post", color="C2", label="speed scale")
     ax_s.set_ylim(-0.05, 1.05)
     ax_s.set_ylabel("speed scale")
     fault_t = [t for t, f in zip(stamps, faulted, strict=True) if f]
@@ -154,7 +173,7 @@ def plot_timeline(
         ax_s.legend(fontsize=8, loc="upper right")
 
     finite_ms = [x for x in cycle_ms if not math.isnan(x) and x > 0]
-    ax_c.plot(stamps, cycle_ms, color="C4", marker=marker, ms=3)
+    ax_c.plot(stamps, cycle_ms, color="C4", marker=marker, ms=3, label="cycle time")
     if finite_ms:
         ax_c.set_yscale("log")
     ax_c.set_ylabel("cycle [ms]")
@@ -164,9 +183,4 @@ def plot_timeline(
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fig.savefig(path, format="png")
-    except OSError as exc:
-        raise PolyhullError(f"{path}: cannot write the timeline plot ({exc})") from exc
-    return path
+    return fig
