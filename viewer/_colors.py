@@ -73,7 +73,7 @@ class Style:
     closest_link_opacity: float = 0.45
     camera_body: int = 0x202428
     camera_label_size: float = 0.09
-    distance_label_size: float = 0.3
+    distance_label_size: float = 0.22
     hull: int = 0x3C78D8
     hull_opacity: float = 0.12
     robot_occlusion: int = 0x2F6FD0

@@ -585,7 +585,7 @@ def view_pose(cell: Cell, aspect: float = 4.0 / 3.0) -> tuple[ArrayF64, ArrayF64
     up = np.cross(right, forward)
     tan_v = np.tan(np.deg2rad(VIEW_FOV_DEG) / 2.0) * 0.92  # margin: 8 % of the half-view
     tan_h = tan_v * aspect
-    distance = float(np.linalg.norm(hi - lo))
+    distance = 0.25 * float(np.linalg.norm(corner - target))  # from close in, back off
     for _ in range(200):
         eye = direction * distance
         d = corners - eye
