@@ -737,6 +737,7 @@ def test_demo_shares_the_static_region_and_follows_the_timeline(cell: Cell, tmp_
     assert timeline["colors"][0] == f"#{pv.speed_color_hex(0.0):06x}"
     html = recorder.write_html(tmp_path / "demo.html").read_text(encoding="utf-8")
     assert '"texts": [' in html and "viewer.animator" in html and "viewer.gui.open()" in html
+    assert "animator.update = function" in html  # redraws at 20 Hz, not at every frame
 
 
 def test_text_labels_have_a_screen_size() -> None:

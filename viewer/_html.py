@@ -274,8 +274,8 @@ def meshcat_bundle() -> str:
 
 # The commands are decoded synchronously and in order (meshcat's own static HTML fetches
 # data: URLs, whose promises may resolve out of order). The status line sits over the view;
-# with a timeline it follows the animation's time (meshcat's animator), and the animation
-# controls are shown open.
+# with a timeline it follows the animation's time (meshcat's animator), the animation
+# controls are shown open, and the animation redraws at 20 Hz.
 _HTML_TEMPLATE = """<!DOCTYPE html>
 <html>
 <head>
@@ -319,6 +319,16 @@ var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
   var timeline = {timeline};
   if (!timeline) {{ return; }}
   viewer.gui.open();
+  // The animation advances (and the scene redraws) at most 20 times a second: smooth enough
+  // for cycles of a tenth of a second or more, and a third of the drawing at 60 Hz, which
+  // is what a browser without a GPU (software WebGL) spends its time on.
+  var animator = viewer.animator, advance = animator.update.bind(animator), last = -Infinity;
+  animator.update = function () {{
+    var now = performance.now();
+    if (now - last < 50) {{ return; }}
+    last = now;
+    advance();
+  }};
   var text = document.getElementById("polyhull-text");
   var swatch = document.getElementById("polyhull-swatch");
   var progress = document.getElementById("polyhull-progress");
