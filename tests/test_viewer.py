@@ -450,6 +450,20 @@ def test_draw_verdict_splits_static_and_dynamic_around_the_robot() -> None:
         assert np.all(np.ptp(shell, axis=0) > np.ptp(arm.vertices, axis=0))
 
 
+def test_dynamic_region_drawn_is_what_the_cycle_adds_to_the_static_region() -> None:
+    """A restored sheet that already lies in the static region is drawn with the static region."""
+    person = _box([1.0, 1.0, 0.0], [0.5, 0.4, 1.8])
+    static = _box([0.0, 5.5, 3.0], [0.5, 0.5, 0.5])
+    sheet_in_static = _box([0.0, 5.6, 3.1], [0.3, 0.3, 0.3])
+    verdict = replace(_verdict(region=person + static), region_dynamic=person + sheet_in_static)
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, verdict, static_region=static)
+    drawn = _positions(vis, "/polyhull/regions/dynamic")
+    np.testing.assert_allclose(drawn.max(axis=0), [1.5, 1.4, 1.8], atol=1e-5)  # the person only
+    far_or_near = [p for p in vis.object_paths() if p.startswith("/polyhull/regions/static/")]
+    assert far_or_near == ["/polyhull/regions/static/near"]  # no robot given: all of it "near"
+
+
 def test_robot_links_keep_their_urdf_colours() -> None:
     grey = trimesh.creation.box(extents=[1, 1, 1])
     grey.visual.face_colors = [64, 64, 70, 255]

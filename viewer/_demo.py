@@ -180,8 +180,9 @@ class DemoRecorder:
             t: Time of the cycle [s]; strictly increasing from cycle to cycle.
             q: Joint positions [rad] of the robot in this cycle.
             person_meshes: The people (or other targets) in the world frame.
-            verdict: The monitor's verdict of this cycle; its ``region_dynamic`` is drawn
-                (its whole ``region`` when it has none). Only that region is read.
+            verdict: The monitor's verdict of this cycle; its ``region_dynamic`` minus the
+                static region is drawn (its whole ``region`` when it has no
+                ``region_dynamic``). Only that region is read.
         """
         t = float(t)
         if not np.isfinite(t):
@@ -206,7 +207,12 @@ class DemoRecorder:
         points = verdict.closest_points
         closest = None if points is None else np.array(points, dtype=np.float64).reshape(2, 3)
         dynamic = getattr(verdict, "region_dynamic", None)
-        region = verdict.region if dynamic is None else dynamic
+        if dynamic is None:
+            region = verdict.region
+        elif self.static_region is not None:
+            region = dynamic - self.static_region  # what this cycle adds to the static region
+        else:
+            region = dynamic
         self._cycles.append(
             _Cycle(
                 t=t,

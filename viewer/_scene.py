@@ -417,9 +417,10 @@ def draw_verdict(
 ) -> None:
     """Draw one verdict of the monitor: the region (dynamic, static), M, C, removed, distance.
 
-    The dynamic region (``verdict.region_dynamic``: people, new objects) is drawn in a
-    saturated colour; the static region (``static_region``, or ``region`` minus
-    ``region_dynamic``) as a faint tint near the robot and hidden beyond; M, C and the
+    The dynamic region (``verdict.region_dynamic``: people, new objects; minus
+    ``static_region`` when given) is drawn in a saturated colour; the static region
+    (``static_region``, or ``region`` minus ``region_dynamic``) as a faint tint near the
+    robot and hidden beyond; together they are all of ``region``. M, C and the
     removed components are drawn hidden. A verdict without ``region_dynamic`` has its
     whole ``region`` drawn as dynamic. The closest-distance segment joins the point of R
     and the point of the robot, coloured by the speed scale (red = stop, yellow, green =
@@ -443,8 +444,12 @@ def draw_verdict(
     dynamic = getattr(verdict, "region_dynamic", None)
     if dynamic is None:
         dynamic, static = verdict.region, None
+    elif static_region is not None:
+        # What this cycle adds to the static region: the noise sheets restored under a
+        # kept piece partly lie in the static region already, and are drawn with it.
+        dynamic, static = dynamic - static_region, static_region
     else:
-        static = static_region if static_region is not None else verdict.region - dynamic
+        static = verdict.region - dynamic
     draw_manifold(regions["dynamic"], dynamic, style.region, style.region_opacity)
     q = getattr(verdict, "q", None)
     has_q = q is not None and len(q) > 0
