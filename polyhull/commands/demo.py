@@ -36,10 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--cycles", type=int, default=12, help="number of cycles (default 12)")
     p.add_argument("--dt", type=float, default=0.3, help="simulated time between cycles [s] (default 0.3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
-    p.add_argument("--html", type=Path, default=Path("polyhull-demo.html"), help="animated HTML output")
+    p.add_argument("--html", type=Path, default=Path("polyhull-demo.html"), help="animated HTML output (default: %(default)s)")
     p.add_argument("--no-html", action="store_true", help="do not write the HTML scene")
     p.add_argument(
-        "--plot", type=Path, default=Path("polyhull-demo.png"), metavar="OUT.png", help="timeline plot (PNG)"
+        "--plot", type=Path, default=Path("polyhull-demo.png"), metavar="OUT.png", help="timeline plot, PNG (default: %(default)s)"
     )
     p.add_argument("--no-plot", action="store_true", help="do not write the timeline plot")
     p.add_argument(
