@@ -115,8 +115,9 @@ def test_html_with_frames_draws_regions(
     assert {f"/polyhull/regions/camera/{n}" for n in names} <= paths
     # The same cycle, run here: every non-empty region of the verdict is drawn.
     recorded = load_frames(small_frames)
-    verdict = Monitor(cell).step(recorded.frames, recorded.q, stamp=recorded.stamp)
-    static = Monitor(cell).static.region
+    monitor = Monitor(cell)
+    verdict = monitor.step(recorded.frames, recorded.q, stamp=recorded.stamp)
+    static = monitor.static.region
     for name, region in (
         ("hull", verdict.hull),
         ("robot_occlusion", verdict.robot_occlusion),
