@@ -46,3 +46,40 @@ def test_broken_frames_files_are_one_line(tmp_path: Path, capsys: pytest.Capture
         assert cli.main(["run", str(CELL), "--frames", str(path)]) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and str(path) in err and words in err, err
+
+
+def test_several_frames_files_give_a_line_per_cycle_and_a_plot(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    files = [ROOT / "fixtures" / "frames" / f"small_walk_00{k}.npz" for k in range(2)]
+    plot = tmp_path / "plots" / "timeline.png"
+    assert cli.main(["run", str(CELL), "--frames", *map(str, files), "--json", "--plot", str(plot)]) == 0
+    captured = capsys.readouterr()
+    cycles = json.loads(captured.out)["cycles"]  # stdout is JSON only
+    assert [c["file"] for c in cycles] == [str(f) for f in files]
+    assert [c["stamp"] for c in cycles] == pytest.approx([0.0, 0.1])
+    assert all(set(c) >= {"min_distance", "separation_distance", "speed_scale", "faults", "cycle_ms"} for c in cycles)
+    assert f"wrote {plot}" in captured.err
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    # A directory is its .npz files in name order; text mode prints a line per file.
+    recording = tmp_path / "recording"
+    recording.mkdir()
+    for f in reversed(files):
+        (recording / f.name).write_bytes(f.read_bytes())
+    (recording / "notes.txt").write_text("not a frames file")
+    assert cli.main(["run", str(CELL), "--frames", str(recording)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("small_walk_000.npz") and lines[1].startswith("small_walk_001.npz")
+    assert lines[2] == f"last cycle ({recording / 'small_walk_001.npz'}):"
+
+
+def test_run_flags_are_checked_before_the_monitor(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for argv, words in (
+        (["--frames", str(FRAMES), "--plot", str(tmp_path / "t.svg")], "--plot"),
+        (["--frames", str(empty)], "holds no .npz"),
+        (["--frames", str(FRAMES), str(tmp_path / "nope.npz")], "no such frames file or directory"),
+    ):
+        assert cli.main(["run", str(CELL), *argv]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and words in err, err

@@ -115,13 +115,19 @@ def test_html_with_frames_draws_regions(
     assert {f"/polyhull/regions/camera/{n}" for n in names} <= paths
     # The same cycle, run here: every non-empty region of the verdict is drawn.
     recorded = load_frames(small_frames)
-    verdict = Monitor(cell).step(recorded.frames, recorded.q, stamp=recorded.stamp)
+    monitor = Monitor(cell)
+    verdict = monitor.step(recorded.frames, recorded.q, stamp=recorded.stamp)
+    static = monitor.static.region
     for name, region in (
         ("hull", verdict.hull),
         ("robot_occlusion", verdict.robot_occlusion),
-        ("region", verdict.region),
+        ("dynamic", verdict.region_dynamic),
     ):
         assert (f"/polyhull/regions/{name}" in paths) == (not region.is_empty()), name
+    # The static region is drawn near the robot, and beyond (hidden), when it reaches there.
+    drawn_static = {p for p in paths if p.startswith("/polyhull/regions/static/")}
+    assert drawn_static and drawn_static <= {"/polyhull/regions/static/near", "/polyhull/regions/static/far"}
+    assert not static.is_empty()
     has_distance = verdict.closest_points is not None and np.isfinite(verdict.min_distance)
     assert ("/polyhull/distance/segment" in paths) == has_distance
     # At most --max-points points per camera.

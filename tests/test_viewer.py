@@ -11,7 +11,7 @@ import json
 import re
 import subprocess
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +30,7 @@ from polyhull.errors import FrameError, PolyhullError
 from polyhull.frames import DepthFrame
 from polyhull_viewer._demo import rigid_transform
 from polyhull_viewer._geometry import cluster_decimate, manifold_arrays, mesh_object
+from polyhull_viewer._scene import view_pose
 
 # -- fixtures ---------------------------------------------------------------------------------
 
@@ -116,6 +117,7 @@ class FakeVerdict:
     timings: dict[str, float] = field(default_factory=dict)
     q: np.ndarray = field(default_factory=lambda: np.array([0.3, 0.0]))
     stamp: float = 0.0
+    region_dynamic: m3.Manifold | None = None  # None: the split is unknown, all is dynamic
 
 
 def _box(lo: list[float], size: list[float]) -> m3.Manifold:
@@ -334,7 +336,11 @@ def test_draw_cell_paths_and_colours(cell: Cell) -> None:
     assert len(_positions(vis, "/polyhull/cell/zone")) == 24
     pts = _positions(vis, "/polyhull/cameras/ne/frustum")
     assert np.all(pts >= -1e-4) and np.all(pts <= np.array([6.0, 6.0, 3.5]) + 1e-4)
-    assert _json(vis, "/polyhull/cameras/ne/label")["object"]["type"] == "Sprite"
+    # Camera labels are sprites of one size on screen, whatever their distance.
+    labels = [_json(vis, f"/polyhull/cameras/{n}/label") for n in ("ne", "sw_low")]
+    assert all(label["object"]["type"] == "Sprite" for label in labels)
+    assert all(label["materials"][0]["sizeAttenuation"] is False for label in labels)
+    assert labels[0]["object"]["matrix"] == labels[1]["object"]["matrix"]
     # An open obstacle is see-through, a solid one is not.
     assert _material(vis, "/polyhull/cell/obstacles/curtain")["transparent"]
     assert not _material(vis, "/polyhull/cell/obstacles/table")["transparent"]
@@ -357,6 +363,19 @@ def test_draw_cell_without_robot(cell: Cell) -> None:
     assert "/mine/cell/zone" in vis.object_paths()
 
 
+def _tube_axis_check(points: np.ndarray, ends: np.ndarray, radius: float) -> None:
+    """A tube's vertices lie between the ends (2, 3), on the axis (cap centres) or ``radius`` off it."""
+    a, b = ends
+    axis = (b - a) / np.linalg.norm(b - a)
+    t = (points - a) @ axis
+    off = np.linalg.norm((points - a) - np.outer(t, axis), axis=1)
+    assert t.min() > -1e-4 and t.max() < np.linalg.norm(b - a) + 1e-4
+    assert np.isclose(t.min(), 0.0, atol=1e-4) and np.isclose(t.max(), np.linalg.norm(b - a), atol=1e-4)
+    rim = off > 1e-6
+    assert rim.sum() >= 16
+    np.testing.assert_allclose(off[rim], radius, atol=1e-4)
+
+
 def test_draw_verdict_paths_colours_and_updates() -> None:
     vis = pv.StaticVisualizer()
     verdict = _verdict(speed=0.25)
@@ -365,7 +384,7 @@ def test_draw_verdict_paths_colours_and_updates() -> None:
     assert {
         "/polyhull/regions/hull",
         "/polyhull/regions/robot_occlusion",
-        "/polyhull/regions/region",
+        "/polyhull/regions/dynamic",  # no region_dynamic: all of R counts as dynamic
         "/polyhull/regions/removed/0_flying",
         "/polyhull/regions/removed/1_too small",
         "/polyhull/distance/segment",
@@ -375,23 +394,99 @@ def test_draw_verdict_paths_colours_and_updates() -> None:
     } == paths
     colours = {
         name: _material(vis, f"/polyhull/regions/{name}")
-        for name in ("hull", "robot_occlusion", "region")
+        for name in ("hull", "robot_occlusion", "dynamic")
     }
     assert len({m["color"] for m in colours.values()}) == 3  # C, M, R distinct
     assert all(m["transparent"] for m in colours.values())
-    assert colours["hull"]["opacity"] < colours["robot_occlusion"]["opacity"] < colours["region"]["opacity"]
+    assert colours["hull"]["opacity"] < colours["robot_occlusion"]["opacity"] < colours["dynamic"]["opacity"]
+    # C, M and the removed parts start hidden; the dynamic region shows.
+    for hidden in ("hull", "robot_occlusion", "removed"):
+        assert vis.node_info(f"/polyhull/regions/{hidden}")["properties"] == {"visible": False}  # type: ignore[index]
+    assert "visible" not in vis.node_info("/polyhull/regions/dynamic")["properties"]  # type: ignore[index]
     assert _material(vis, "/polyhull/distance/segment")["color"] == pv.speed_color_hex(0.25)
     assert verdict.closest_points is not None
-    pts = _positions(vis, "/polyhull/distance/segment")
-    np.testing.assert_allclose(pts, verdict.closest_points, atol=1e-6)
+    _tube_axis_check(_positions(vis, "/polyhull/distance/segment"), verdict.closest_points, pv.STYLE.segment_radius)
     T = vis.node_info("/polyhull/distance/robot_point")["transform"]["matrix"]  # type: ignore[index]
     np.testing.assert_allclose(np.reshape(T, (4, 4)).T[:3, 3], verdict.closest_points[1])
+    d = np.linalg.norm(verdict.closest_points[1] - verdict.closest_points[0])
+    assert vis.status == (f"{d:.2f} m to arm, speed 25 %", pv.speed_color_hex(0.25))
+    label = _json(vis, "/polyhull/distance/label")
+    assert label["textures"][0]["text"] == vis.status[0]
 
     # Next cycle: the region is empty, no distance, one removed component fewer.
     empty = m3.Manifold()
     nothing = FakeVerdict(empty, empty, empty, empty, verdict.removed[:1], float("inf"), None, None, 1.0)
     pv.draw_verdict(vis, nothing)
     assert set(vis.object_paths()) == {"/polyhull/regions/removed/0_flying"}
+    assert vis.status is not None and vis.status[0] == "no possibly occupied region near the robot, speed 100 %"
+
+
+def test_draw_verdict_splits_static_and_dynamic_around_the_robot() -> None:
+    """The person's region is saturated; the static region shows faintly only near the robot."""
+    person = _box([1.0, 1.0, 0.0], [0.5, 0.4, 1.8])
+    near_static = _box([3.5, 2.5, 0.0], [0.4, 0.4, 0.3])  # a shadow next to the robot
+    far_static = _box([0.0, 5.5, 3.0], [0.5, 0.5, 0.5])  # blind space in a far ceiling corner
+    static = near_static + far_static
+    verdict = replace(_verdict(region=person + static, speed=0.6), region_dynamic=person)
+    for static_region in (None, static):  # computed as region - region_dynamic, or given
+        vis = pv.StaticVisualizer()
+        pv.draw_verdict(vis, verdict, robot=FakeRobot(), static_region=static_region)
+        dynamic = _positions(vis, "/polyhull/regions/dynamic")
+        np.testing.assert_allclose(dynamic.min(axis=0), [1.0, 1.0, 0.0], atol=1e-5)
+        np.testing.assert_allclose(dynamic.max(axis=0), [1.5, 1.4, 1.8], atol=1e-5)
+        near = _positions(vis, "/polyhull/regions/static/near")
+        far = _positions(vis, "/polyhull/regions/static/far")
+        np.testing.assert_allclose(near.min(axis=0), [3.5, 2.5, 0.0], atol=1e-5)
+        assert far.min(axis=0)[2] > 2.9  # the ceiling corner
+        assert "visible" not in vis.node_info("/polyhull/regions/static/near")["properties"]  # type: ignore[index]
+        assert vis.node_info("/polyhull/regions/static/far")["properties"] == {"visible": False}  # type: ignore[index]
+        dyn_m, static_m = (_material(vis, f"/polyhull/regions/{p}") for p in ("dynamic", "static/near"))
+        assert dyn_m["opacity"] >= 3 * static_m["opacity"]  # saturated against a faint tint
+        # The closest link ("arm") gets a shell in the speed colour, around the link.
+        shell = _positions(vis, "/polyhull/distance/closest_link")
+        arm = FakeRobot().visual_meshes(verdict.q)["arm"]
+        assert _material(vis, "/polyhull/distance/closest_link")["color"] == pv.speed_color_hex(0.6)
+        np.testing.assert_allclose(shell.mean(axis=0), arm.vertices.mean(axis=0), atol=0.02)
+        assert np.all(np.ptp(shell, axis=0) > np.ptp(arm.vertices, axis=0))
+
+
+def test_dynamic_region_drawn_is_what_the_cycle_adds_to_the_static_region() -> None:
+    """A restored sheet that already lies in the static region is drawn with the static region."""
+    person = _box([1.0, 1.0, 0.0], [0.5, 0.4, 1.8])
+    static = _box([0.0, 5.5, 3.0], [0.5, 0.5, 0.5])
+    sheet_in_static = _box([0.0, 5.6, 3.1], [0.3, 0.3, 0.3])
+    verdict = replace(_verdict(region=person + static), region_dynamic=person + sheet_in_static)
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, verdict, static_region=static)
+    drawn = _positions(vis, "/polyhull/regions/dynamic")
+    np.testing.assert_allclose(drawn.max(axis=0), [1.5, 1.4, 1.8], atol=1e-5)  # the person only
+    far_or_near = [p for p in vis.object_paths() if p.startswith("/polyhull/regions/static/")]
+    assert far_or_near == ["/polyhull/regions/static/near"]  # no robot given: all of it "near"
+
+
+def test_robot_links_keep_their_urdf_colours() -> None:
+    grey = trimesh.creation.box(extents=[1, 1, 1])
+    grey.visual.face_colors = [64, 64, 70, 255]
+    two = trimesh.creation.box(extents=[1, 1, 1])
+    colors = np.tile([255, 107, 0, 255], (len(two.faces), 1))
+    colors[:4] = [30, 30, 30, 255]
+    two.visual.face_colors = colors
+    plain = trimesh.creation.box(extents=[1, 1, 1])
+
+    class Robot:
+        def visual_meshes(self, q: Any) -> dict[str, trimesh.Trimesh]:
+            return {"base": grey, "arm": two, "plain": plain}
+
+    vis = pv.StaticVisualizer()
+    pv.draw_robot(vis["/r"], Robot(), np.zeros(1))
+    assert _material(vis, "/r/base")["color"] == 0x404046
+    assert _material(vis, "/r/plain")["color"] == pv.STYLE.robot
+    arm = _json(vis, "/r/arm")
+    assert arm["materials"][0]["vertexColors"]
+    rgb = _decode(arm["geometries"][0]["data"]["attributes"]["color"]["array"], np.float32).reshape(-1, 3)
+    assert len(rgb) == 3 * len(two.faces)  # unshared vertices: flat colour per face
+    np.testing.assert_allclose(rgb[0], [30 / 255, 30 / 255, 30 / 255], atol=1e-6)
+    np.testing.assert_allclose(rgb[-1], [1.0, 107 / 255, 0.0], atol=1e-6)
 
 
 def test_draw_frames_point_clouds(cell: Cell) -> None:
@@ -405,6 +500,7 @@ def test_draw_frames_point_clouds(cell: Cell) -> None:
     vis = pv.StaticVisualizer()
     drawn = pv.draw_frames(vis, cell, frames, max_points=500)
     assert drawn == ["ne"]
+    assert vis.node_info("/polyhull/frames")["properties"] == {"visible": False}  # type: ignore[index]
     obj = _json(vis, "/polyhull/frames/ne")
     assert obj["object"]["type"] == "Points"
     attrs = obj["geometries"][0]["data"]["attributes"]
@@ -419,6 +515,16 @@ def test_draw_frames_point_clouds(cell: Cell) -> None:
 
     all_points, depths = pv.frame_points(camera, frames["ne"], max_points=10**6)
     assert len(all_points) == (camera.shape[0] - 4) * camera.shape[1]
+
+    # Points beyond the zone are clipped: at 7.9 m the rays leave the 6 x 6 x 3.5 m box.
+    far = {"ne": DepthFrame("ne", np.where(np.isfinite(depth) & (depth > 0), 7.9, depth).astype(np.float32))}
+    unclipped, _ = pv.frame_points(camera, far["ne"], max_points=10**6)
+    outside = ~np.all((unclipped >= 0.0) & (unclipped <= [6.0, 6.0, 3.5]), axis=1)
+    assert outside.any()
+    pv.draw_frames(vis, cell, far, max_points=10**6)
+    drawn_far = _positions(vis, "/polyhull/frames/ne")
+    assert len(drawn_far) == int((~outside).sum())
+    assert np.all(drawn_far >= -1e-5) and np.all(drawn_far <= np.array([6.0, 6.0, 3.5]) + 1e-5)
 
     with pytest.raises(FrameError, match="unknown cameras"):
         pv.draw_frames(vis, cell, {"nope": DepthFrame("nope", depth)})
@@ -444,14 +550,29 @@ def test_draw_camera_regions_hidden_by_default() -> None:
     assert vis.object_paths() == ["/polyhull/regions/camera/a"]
 
 
-def test_set_view_centres_the_floor(cell: Cell) -> None:
+def test_set_view_looks_at_the_robot_from_a_corner(cell: Cell) -> None:
     vis = pv.StaticVisualizer()
     pv.set_view(vis, cell)
     T = np.reshape(vis.node_info("/polyhull")["transform"]["matrix"], (4, 4)).T  # type: ignore[index]
-    np.testing.assert_allclose(T[:3, 3], [-3.0, -3.0, 0.0])
-    position = vis.node_info("/Cameras/default/rotated/<object>")["properties"]["position"]  # type: ignore[index]
-    # y-up camera frame: height (scene z) is the second coordinate and must be positive.
-    assert position[1] > 0 and np.linalg.norm(position) > 4.0
+    target = -T[:3, 3]  # what goes to the orbit centre: the robot base at working height
+    np.testing.assert_allclose(target[:2], [3.0, 3.0])
+    assert 0.0 < target[2] < 1.0
+    grid = np.reshape(vis.node_info("/Grid")["transform"]["matrix"], (4, 4)).T  # type: ignore[index]
+    assert np.isclose(grid[2, 3] + target[2], 0.0)  # the grid lies on the zone's floor
+    x, y_up, minus_y = vis.node_info("/Cameras/default/rotated/<object>")["properties"]["position"]  # type: ignore[index]
+    eye = target + np.array([x, -minus_y, y_up])
+    assert eye[0] > 6.0 and eye[1] < 0.0 and eye[2] > 3.5  # beyond the (+x, -y, top) corner
+    # Every corner of Z is in view (75 degree vertical field, 4:3).
+    _, eye_scene = view_pose(cell)
+    forward = -eye_scene / np.linalg.norm(eye_scene)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    corners = np.array([[a, b, c] for a in (0.0, 6.0) for b in (0.0, 6.0) for c in (0.0, 3.5)]) - target
+    d = corners - eye_scene
+    depth = d @ forward
+    tan = np.tan(np.deg2rad(37.5))
+    assert np.all(np.abs(d @ up) < depth * tan) and np.all(np.abs(d @ right) < depth * tan * 4 / 3)
 
 
 # -- HTML -------------------------------------------------------------------------------------
@@ -477,6 +598,10 @@ def test_html_is_standalone(tmp_path: Path, cell: Cell) -> None:
     commands = _html_commands(html)
     paths = [c["path"] for c in commands if c["type"] == "set_object"]
     assert paths == vis.object_paths()
+    # The distance line is HTML text over the view (escaped), with no timeline.
+    assert vis.status is not None
+    assert f'<span id="polyhull-text">{vis.status[0]}</span>' in html
+    assert "var timeline = null;" in html
     assert {c["type"] for c in commands} == {"set_object", "set_property", "set_transform"}
 
 
@@ -598,6 +723,57 @@ def test_demo_rejects_bad_input(cell: Cell) -> None:
     # One cycle without a person or distance still builds.
     vis = recorder.build()
     assert "/polyhull/anim/region/0" in vis.object_paths()
+
+
+def test_demo_shares_the_static_region_and_follows_the_timeline(cell: Cell, tmp_path: Path) -> None:
+    """The static region is sent once; each cycle sends only its dynamic region, within budget."""
+    static = _box([3.4, 2.4, 0.0], [0.5, 0.5, 0.3]) + _box([0.0, 5.5, 3.0], [0.5, 0.5, 0.5])
+    recorder = pv.DemoRecorder(cell, robot=FakeRobot(), static_region=static, face_budget=600, max_faces=400)
+    person = m3.Manifold.sphere(0.4, 96)  # about 18,000 triangles
+    for k in range(6):
+        dyn = person.translate((1.0 + 0.1 * k, 1.0, 0.9))
+        verdict = replace(_verdict(region=dyn + static, speed=0.2 * k), region_dynamic=dyn)
+        recorder.add_cycle(0.5 * k, [0.1 * k, 0.0], [], verdict)
+    vis = recorder.build()
+    paths = vis.object_paths()
+    assert [p for p in paths if "/static/" in p] == ["/polyhull/regions/static/near", "/polyhull/regions/static/far"]
+    for k in range(6):
+        geometry = _json(vis, f"/polyhull/anim/region/{k}")["geometries"][0]
+        faces = _decode(geometry["data"]["index"]["array"], np.uint32)
+        assert 0 < len(faces) // 3 <= 100  # 600 faces shared by 6 cycles
+        centre = _decode(geometry["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3).mean(axis=0)
+        np.testing.assert_allclose(centre, [1.0 + 0.1 * k, 1.0, 0.9], atol=0.05)  # only the dynamic part
+    timeline = vis.timeline
+    assert timeline is not None
+    np.testing.assert_allclose(timeline["times"], [0.0, 0.5, 1.0, 1.5, 2.0, 2.5])
+    assert timeline["duration"] == pytest.approx(3.0)
+    assert timeline["texts"][2].startswith("t = 1.0 s") and timeline["texts"][2].endswith("speed 40 %")
+    assert timeline["colors"][0] == f"#{pv.speed_color_hex(0.0):06x}"
+    html = recorder.write_html(tmp_path / "demo.html").read_text(encoding="utf-8")
+    assert '"texts": [' in html and "viewer.animator" in html and "viewer.gui.open()" in html
+    assert "animator.update = function" in html  # redraws at 20 Hz, not at every frame
+
+
+def test_text_labels_have_a_screen_size() -> None:
+    world = pv.TextLabel("a", height=0.8)
+    screen = pv.TextLabel("a", screen_size=0.1)
+    assert world.lower()["object"]["matrix"][0] == pytest.approx(0.8)
+    assert world.lower()["materials"][0]["sizeAttenuation"] is True
+    lowered = screen.lower()
+    assert lowered["materials"][0]["sizeAttenuation"] is False
+    # Without attenuation, a sprite of scale s spans s / (2 tan(37.5 deg)) of the view's height.
+    assert lowered["object"]["matrix"][0] / (2 * np.tan(np.deg2rad(37.5))) == pytest.approx(0.1)
+
+
+def test_set_timeline_rejects_bad_input() -> None:
+    vis = pv.StaticVisualizer()
+    with pytest.raises(ValueError, match="as many"):
+        vis.set_timeline([0.0, 1.0], ["a"], [0, 0], 2.0)
+    with pytest.raises(ValueError, match="increase"):
+        vis.set_timeline([1.0, 1.0], ["a", "b"], [0, 0], 2.0)
+    vis.set_timeline([0.0, 1.0], ["a </script>", "b"], [0xFF0000, 0], 2.0)
+    html = vis.static_html()
+    assert "a </script>" not in html and "a <\\/script>" in html
 
 
 # -- packaging --------------------------------------------------------------------------------

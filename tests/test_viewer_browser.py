@@ -1,8 +1,12 @@
-"""The standalone HTML renders in a real browser: headless Chromium takes a screenshot.
+"""The standalone HTML renders in a real browser: what a person sees in headless Chromium.
 
-The screenshot must not be blank or an error page, and the robot's orange must appear
-exactly where the robot projects through the default view (meshcat's perspective camera:
-75 degree vertical field of view, at ``view_pose``'s eye, looking at the scene origin).
+Screenshots at the default view (meshcat's perspective camera: 75 degree vertical field
+of view, at ``view_pose``'s eye, looking at the scene origin) must not be blank or an error
+page; the robot's colour must appear where the robot projects; the dynamic region's red
+must appear where the person projects in a person scene and not at all in an empty one;
+the red share of the picture is bounded (the static blind space never paints the zone as
+one red box); the distance line is text in the page's DOM. The demo page autoplays with
+meshcat's animation controls open.
 
 Chromium is Debian's ``chromium`` package (``.ci/run`` installs it); without it the tests
 are skipped. WebGL runs on SwiftShader (software), so no GPU is needed.
@@ -13,6 +17,7 @@ from __future__ import annotations
 import argparse
 import colorsys
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -45,8 +50,11 @@ def _chromium() -> str:
     pytest.skip("chromium not installed: apt-get install chromium")
 
 
-def screenshot(html: Path, png: Path) -> np.ndarray:
-    """Render ``html`` in headless Chromium and return the screenshot as (H, W, 3) uint8."""
+def screenshot(html: Path, png: Path, dom: list[str] | None = None) -> np.ndarray:
+    """Render ``html`` in headless Chromium and return the screenshot as (H, W, 3) uint8.
+
+    With ``dom``, the page's DOM after its scripts ran is appended to it (same run).
+    """
     browser = _chromium()
     command = [
         browser,
@@ -64,10 +72,13 @@ def screenshot(html: Path, png: Path) -> np.ndarray:
         f"--screenshot={png}",
         f"--window-size={WIDTH},{HEIGHT}",
         "--virtual-time-budget=10000",
+        *(["--dump-dom"] if dom is not None else []),
         html.resolve().as_uri(),
     ]
     result = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert png.is_file(), f"no screenshot (exit {result.returncode}): {result.stderr[-2000:]}"
+    if dom is not None:
+        dom.append(result.stdout)
     keep = os.environ.get("POLYHULL_SCREENSHOT_DIR")
     if keep:
         Path(keep).mkdir(parents=True, exist_ok=True)
@@ -143,36 +154,114 @@ def test_paper_cell_renders_with_the_robot_where_it_stands(tmp_path: Path) -> No
     assert len(xs) > 0.15 * box_area
 
 
-def test_regions_render_where_they_are(tmp_path: Path) -> None:
-    """A verdict's region R shows in its colour at its projected place."""
-    _chromium()
-    cell = load_cell(PAPER_CELL)
-    region = m3.Manifold.cube((0.6, 0.6, 1.8)).translate((1.0, 1.2, 0.0))
+def _box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> m3.Manifold:
+    size = tuple(b - a for a, b in zip(lo, hi, strict=True))
+    return m3.Manifold.cube(size).translate(lo)
+
+
+PERSON_LO, PERSON_HI = (1.5, 1.8, 0.0), (2.0, 2.2, 1.8)
+
+
+def _static_region() -> m3.Manifold:
+    """Blind space as the engine finds it: under the ceiling, behind the tables and the rack."""
+    return (
+        _box((0.0, 0.0, 2.7), (6.0, 6.0, 3.5))
+        + _box((2.2, 0.85, 0.0), (3.8, 1.4, 0.8))
+        + _box((4.6, 2.2, 0.0), (5.15, 3.8, 0.8))
+        + _box((0.8, 3.3, 0.0), (1.4, 5.1, 2.0))
+    )
+
+
+def _verdict(cell: Cell, dynamic: m3.Manifold, speed: float) -> object:
+    """A verdict with the given dynamic region, the static region above, and a distance."""
+    static = _static_region()
+    assert cell.robot is not None
     empty = m3.Manifold()
+    q = np.asarray(cell.robot.q)
+    if dynamic.is_empty():
+        points, distance, link = None, float("inf"), None
+    else:
+        points = np.array([[2.0, 2.2, 1.0], [2.8, 2.9, 1.0]])
+        distance, link = float(np.linalg.norm(points[1] - points[0])), "link_3"
 
     class Verdict:
-        hull = region
-        robot_occlusion = empty
-        region_r2 = region
+        region = static + dynamic
+        region_dynamic = dynamic
+        hull = robot_occlusion = region_r2 = empty
         removed = ()
-        min_distance = float("inf")
-        closest_points = None
-        closest_link = None
-        speed_scale = 1.0
-        q = np.asarray(cell.robot.q if cell.robot else [])
+        min_distance = distance
+        closest_points = points
+        closest_link = link
+        speed_scale = speed
 
-    Verdict.region = region  # type: ignore[attr-defined]
+    Verdict.q = q  # type: ignore[attr-defined]
+    return Verdict()
+
+
+def _red(image: np.ndarray) -> np.ndarray:
+    return hue_mask(image, pv.STYLE.region, tol=0.04)
+
+
+def test_person_scene_shows_the_person_region_and_the_distance_in_the_dom(tmp_path: Path) -> None:
+    _chromium()
+    cell = load_cell(PAPER_CELL)
+    person = _box(PERSON_LO, PERSON_HI)
     vis = pv.StaticVisualizer()
-    pv.draw_scene(vis, cell, verdict=Verdict())  # type: ignore[arg-type]
-    html = pv.write_html(vis, tmp_path / "region.html")
-    image = screenshot(html, tmp_path / "region.png")
+    pv.draw_scene(vis, cell, verdict=_verdict(cell, person, speed=0.62), static_region=_static_region())  # type: ignore[arg-type]
+    dom: list[str] = []
+    image = screenshot(pv.write_html(vis, tmp_path / "person.html"), tmp_path / "person.png", dom)
     assert_not_blank(image)
 
-    corners = np.array([[x, y, z] for x in (1.0, 1.6) for y in (1.2, 1.8) for z in (0.0, 1.8)])
+    corners = np.array([[x, y, z] for x in (PERSON_LO[0], PERSON_HI[0]) for y in (PERSON_LO[1], PERSON_HI[1]) for z in (PERSON_LO[2], PERSON_HI[2])])
     uv = project(cell, corners, image.shape[:2])
     lo, hi = uv.min(axis=0), uv.max(axis=0)
-    red = hue_mask(image, pv.STYLE.region, tol=0.04)
+    red = _red(image)
     ys, xs = np.nonzero(red)
-    assert len(xs) > 200, f"only {len(xs)} region-coloured pixels"
     inside = (xs >= lo[0] - 8) & (xs <= hi[0] + 8) & (ys >= lo[1] - 8) & (ys <= hi[1] + 8)
-    assert inside.mean() > 0.95
+    assert inside.sum() > 0.3 * float(np.prod(hi - lo)), f"only {inside.sum()} red pixels where the person is"
+    assert inside.mean() > 0.95, "red pixels away from the person: the static region is not faint"
+    # The zone is not one red box: the red share of the whole picture is small.
+    assert red.mean() < 0.05, f"red share {red.mean():.3f}"
+    # The robot still shows in its colour.
+    assert hue_mask(image, 0xFF6B00).sum() > 300
+    # The distance line is text in the page, as a person reads it.
+    match = re.search(r'<span id="polyhull-text">([^<]*)</span>', dom[0])
+    assert match is not None and match.group(1) == "1.06 m to link_3, speed 62 %"
+
+
+def test_empty_scene_has_no_dynamic_region_pixels(tmp_path: Path) -> None:
+    _chromium()
+    cell = load_cell(PAPER_CELL)
+    vis = pv.StaticVisualizer()
+    pv.draw_scene(vis, cell, verdict=_verdict(cell, m3.Manifold(), speed=1.0), static_region=_static_region())  # type: ignore[arg-type]
+    image = screenshot(pv.write_html(vis, tmp_path / "empty.html"), tmp_path / "empty.png")
+    assert_not_blank(image)
+    assert _red(image).sum() < 30, f"{_red(image).sum()} red pixels in an empty cell"
+    assert hue_mask(image, 0xFF6B00).sum() > 300
+
+
+def test_demo_page_autoplays_with_its_controls_and_status_line(tmp_path: Path) -> None:
+    _chromium()
+    cell = load_cell(PAPER_CELL)
+    assert cell.robot is not None
+    robot = Robot.from_spec(cell.robot)
+    recorder = pv.DemoRecorder(cell, robot=robot, static_region=_static_region())
+    q0 = np.asarray(cell.robot.q)
+    person = _box(PERSON_LO, PERSON_HI)
+    for k in range(4):  # the person stands still; the robot turns
+        q = q0 + np.array([0.2 * k, 0, 0, 0, 0, 0])
+        recorder.add_cycle(0.5 * k, q, [], _verdict(cell, person, speed=0.25 * k))  # type: ignore[arg-type]
+    html = recorder.write_html(tmp_path / "demo.html")
+    assert html.stat().st_size < 5_000_000
+    dom: list[str] = []
+    image = screenshot(html, tmp_path / "demo.png", dom)
+    assert_not_blank(image)
+    assert "Close Controls" in dom[0]  # meshcat's controls (with the animation's) are open
+    match = re.search(r'<span id="polyhull-text">([^<]*)</span>', dom[0])
+    assert match is not None and re.fullmatch(r"t = \d\.\d s   1\.06 m to link_3, speed \d+ %", match.group(1))
+    corners = np.array([PERSON_LO, PERSON_HI])
+    uv = project(cell, corners, image.shape[:2])
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    ys, xs = np.nonzero(_red(image))
+    inside = (xs >= lo[0] - 8) & (xs <= hi[0] + 8) & (ys >= lo[1] - 8) & (ys <= hi[1] + 8)
+    assert inside.sum() > 500

@@ -8,12 +8,14 @@ Draw into your own meshcat visualizer from your controller code::
     vis = meshcat.Visualizer()
     pv.draw_cell(vis, cell, q)              # zone, obstacles, robot, camera frustums
     verdict = monitor.step(frames, q, stamp=t)
-    pv.draw_verdict(vis, verdict)           # C, M, R, removed parts, distance segment
+    pv.draw_verdict(vis, verdict, robot=robot, static_region=monitor.static.region)
+                                            # R (dynamic saturated, static faint), M, C,
+                                            # removed parts (hidden), distance and label
 
 or write a standalone HTML file that opens with no server::
 
     vis = pv.StaticVisualizer()
-    pv.draw_scene(vis, cell, frames=frames, verdict=verdict)
+    pv.draw_scene(vis, cell, frames=frames, verdict=verdict, static_region=monitor.static.region)
     pv.write_html(vis, "cell.html")
 
 The core package ``polyhull`` never imports this one. It needs the ``viewer`` extra
@@ -52,12 +54,15 @@ from ._html import write_html as write_html
 from ._scene import DEFAULT_PREFIX as DEFAULT_PREFIX
 from ._scene import RobotLike as RobotLike
 from ._scene import VerdictLike as VerdictLike
+from ._scene import distance_text as distance_text
 from ._scene import draw_camera_regions as draw_camera_regions
 from ._scene import draw_cell as draw_cell
 from ._scene import draw_frames as draw_frames
 from ._scene import draw_robot as draw_robot
 from ._scene import draw_scene as draw_scene
+from ._scene import draw_static_region as draw_static_region
 from ._scene import draw_verdict as draw_verdict
+from ._scene import robot_sphere as robot_sphere
 from ._scene import set_view as set_view
 from ._server import LiveViewer as LiveViewer
 
@@ -73,16 +78,19 @@ __all__ = [
     "VerdictLike",
     "VisualizerLike",
     "depth_colors",
+    "distance_text",
     "draw_camera_regions",
     "draw_cell",
     "draw_frames",
     "draw_robot",
     "draw_scene",
+    "draw_static_region",
     "draw_verdict",
     "feature_edges",
     "frame_points",
     "hex_to_rgb",
     "rgb_to_hex",
+    "robot_sphere",
     "set_view",
     "speed_color",
     "speed_color_hex",

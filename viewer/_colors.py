@@ -32,23 +32,33 @@ class Style:
 
     Attributes:
         zone: Lines of the work cell box Z.
-        obstacle_solid: Static solids O(j) (a person cannot enter them).
+        obstacle_solid: Static solids O(j) (a person cannot enter them), grey.
         obstacle_open: Static objects a person can enter (drawn see-through).
         obstacle_open_opacity: Opacity of those.
         enclosure_opacity: Opacity of solids outside the zone (walls, fences), drawn as
             faint glass with their edges so they never hide the cell from the view.
-        robot: Robot links; orange, a hue nothing else uses.
+        robot: Robot links without a URDF colour; orange, a hue nothing else uses.
+        closest_link_opacity: Opacity of the shell drawn around the closest link, in the
+            colour of the speed scale.
         camera_body: The small box marking a camera.
+        camera_label_size: Height of a camera label on screen, as a share of the view's
+            height (one size for every label, whatever its distance).
+        distance_label_size: Height of the distance label on screen, likewise.
         hull: The depth hull C (possibly occupied by some camera's verdict).
-        hull_opacity: Opacity of C; low, as C encloses M and R.
-        robot_occlusion: The robot occlusion M.
+        hull_opacity: Opacity of C (hidden by default).
+        robot_occlusion: The robot occlusion M, a blue tint (hidden by default).
         robot_occlusion_opacity: Opacity of M.
-        region: The region R handed to the controller.
-        region_opacity: Opacity of R.
-        removed: Components removed by a plausibility rule.
+        region: The dynamic region (this cycle's part of R: people, new objects), saturated.
+        region_opacity: Opacity of the dynamic region.
+        static_region: The static region (blind space, static shadows), a faint tint.
+        static_region_opacity: Opacity of the static region.
+        static_margin: The static region is shown (by default) within this distance [m]
+            of the sphere around the robot, and hidden beyond.
+        removed: Components removed by a plausibility rule (hidden by default).
         removed_opacity: Opacity of removed components.
-        camera_region_opacity: Opacity of each camera's region C(i).
+        camera_region_opacity: Opacity of each camera's region C(i) (hidden by default).
         person: The person of the demo.
+        segment_radius: Radius of the closest-distance segment's tube [m].
         point_size: Side of a point of a frame's point cloud [m].
         background_top: Background colour at the top of the view.
         background_bottom: Background colour at the bottom of the view.
@@ -60,17 +70,24 @@ class Style:
     obstacle_open_opacity: float = 0.45
     enclosure_opacity: float = 0.08
     robot: int = 0xFF8C00
+    closest_link_opacity: float = 0.45
     camera_body: int = 0x202428
+    camera_label_size: float = 0.09
+    distance_label_size: float = 0.22
     hull: int = 0x3C78D8
     hull_opacity: float = 0.12
-    robot_occlusion: int = 0x8E44AD
-    robot_occlusion_opacity: float = 0.35
-    region: int = 0xD0103A
-    region_opacity: float = 0.75
+    robot_occlusion: int = 0x2F6FD0
+    robot_occlusion_opacity: float = 0.3
+    region: int = 0xE0102F
+    region_opacity: float = 0.8
+    static_region: int = 0xB06070
+    static_region_opacity: float = 0.12
+    static_margin: float = 1.0
     removed: int = 0x707070
     removed_opacity: float = 0.3
     camera_region_opacity: float = 0.15
     person: int = 0xE8C8A0
+    segment_radius: float = 0.02
     point_size: float = 0.02
     background_top: int = 0xF4F6F8
     background_bottom: int = 0xB8C2CC

@@ -1,15 +1,23 @@
 """An animated, standalone HTML record of a monitored run: the person, the robot and R.
 
-meshcat animations can change only transforms and visibility, not geometry. The robot's
-links are rigid, so each link is drawn once and its transform animated. The person and
-the region R change shape every cycle: each cycle gets its own mesh under
-``<prefix>/anim/person/<k>`` and ``<prefix>/anim/region/<k>``, and their ``visible``
-property is animated so only the current cycle's mesh shows. The distance segment and its
-label (``<prefix>/anim/distance/<k>``) follow the same scheme.
+The page shares what does not change and sends only what does. The cell (zone, obstacles,
+cameras) and the static part of the region (blind space, static shadows: the same every
+cycle) are drawn once. The robot's links are rigid, so each link is drawn once and its
+transform animated. meshcat animations can change only transforms and visibility, not
+geometry, so what changes shape every cycle gets one small mesh per cycle, whose
+``visible`` property is animated so only the current cycle's shows::
+
+    <prefix>/anim/person/<k>          the simulated person of cycle k
+    <prefix>/anim/region/<k>          the dynamic region of cycle k (saturated)
+    <prefix>/anim/distance/<k>/...    the distance tube, the closest link's shell, the label
+    <prefix>/regions/static/near|far  the static region, drawn once (far: hidden)
+
+The page autoplays with meshcat's animation controls open, and a status line over the
+view follows the animation: time, distance, closest link and speed.
 
 To keep the file small, at most ``max_cycles`` cycles (evenly spread over the run) go into
-the file, and person and region meshes above ``max_faces`` triangles are decimated for
-display (the recorded verdicts are not touched).
+the file, and meshes are decimated for display to a budget of triangles (the recorded
+verdicts are not touched).
 """
 
 from __future__ import annotations
@@ -28,7 +36,7 @@ from polyhull.cell import Cell
 from polyhull.errors import PolyhullError
 from polyhull.typed import ArrayF32, ArrayF64
 
-from ._colors import STYLE, Style
+from ._colors import STYLE, Style, speed_color_hex
 from ._geometry import (
     ArrayU32,
     cluster_decimate,
@@ -43,9 +51,12 @@ from ._scene import (
     RobotLike,
     VerdictLike,
     _resolve_robot,
+    distance_text,
     draw_cell,
     draw_distance,
+    robot_sphere,
     set_view,
+    split_static,
 )
 
 __all__ = ["DemoRecorder", "rigid_transform"]
@@ -80,7 +91,7 @@ class _Cycle:
     t: float
     q: ArrayF64
     person: tuple[ArrayF32, ArrayU32]
-    region: m3.Manifold
+    region: tuple[ArrayF32, ArrayU32]  # the dynamic region (V, 3), (F, 3)
     closest_points: ArrayF64 | None
     min_distance: float
     speed_scale: float
@@ -92,7 +103,7 @@ class DemoRecorder:
 
     Example::
 
-        recorder = DemoRecorder(cell)
+        recorder = DemoRecorder(cell, static_region=monitor.static.region)
         for t, q, person in run:
             verdict = monitor.step(sim.render(q, targets=[person]), q, stamp=t)
             recorder.add_cycle(t, q, [person], verdict)
@@ -101,8 +112,14 @@ class DemoRecorder:
     Args:
         cell: The cell of the run (drawn once: zone, obstacles, cameras).
         robot: The robot model; ``polyhull.robot.Robot.from_spec(cell.robot)`` when None.
+        static_region: The static part of R (``Monitor.static.region``), drawn once; its
+            part near the robot shows as a faint tint, the rest is hidden.
         max_cycles: Most cycles written to the file, evenly spread over the run.
-        max_faces: Person and region meshes with more triangles are decimated for display.
+        max_faces: Most triangles of one cycle's person or region mesh (decimated for
+            display beyond).
+        face_budget: Most triangles of all cycles' region meshes together; each kept
+            cycle gets an equal share (at most ``max_faces``), which bounds the file size.
+        static_faces: Most triangles of each of the static region's two parts.
         fps: Frame rate of the animation's key times (meshcat counts time in frames).
         prefix: Root path of the scene.
         style: Colours.
@@ -113,8 +130,11 @@ class DemoRecorder:
         cell: Cell,
         *,
         robot: RobotLike | None = None,
+        static_region: m3.Manifold | None = None,
         max_cycles: int = 100,
-        max_faces: int = 1500,
+        max_faces: int = 4000,
+        face_budget: int = 60_000,
+        static_faces: int = 30_000,
         fps: float = 30.0,
         prefix: str = DEFAULT_PREFIX,
         style: Style = STYLE,
@@ -123,12 +143,20 @@ class DemoRecorder:
             raise PolyhullError(f"DemoRecorder: max_cycles must be >= 2, got {max_cycles}")
         if max_faces < 12:
             raise PolyhullError(f"DemoRecorder: max_faces must be >= 12, got {max_faces}")
+        if face_budget < 12 or static_faces < 12:
+            raise PolyhullError(
+                f"DemoRecorder: face_budget and static_faces must be >= 12, got "
+                f"{face_budget} and {static_faces}"
+            )
         if not (np.isfinite(fps) and fps > 0):
             raise PolyhullError(f"DemoRecorder: fps must be > 0, got {fps}")
         self.cell = cell
         self.robot = _resolve_robot(cell, robot)
         self.max_cycles = int(max_cycles)
         self.max_faces = int(max_faces)
+        self.face_budget = int(face_budget)
+        self.static_faces = int(static_faces)
+        self.static_region = static_region
         self.fps = float(fps)
         self.prefix = prefix
         self.style = style
@@ -152,7 +180,9 @@ class DemoRecorder:
             t: Time of the cycle [s]; strictly increasing from cycle to cycle.
             q: Joint positions [rad] of the robot in this cycle.
             person_meshes: The people (or other targets) in the world frame.
-            verdict: The monitor's verdict of this cycle.
+            verdict: The monitor's verdict of this cycle; its ``region_dynamic`` minus the
+                static region is drawn (its whole ``region`` when it has no
+                ``region_dynamic``). Only that region is read.
         """
         t = float(t)
         if not np.isfinite(t):
@@ -176,12 +206,19 @@ class DemoRecorder:
         )
         points = verdict.closest_points
         closest = None if points is None else np.array(points, dtype=np.float64).reshape(2, 3)
+        dynamic = getattr(verdict, "region_dynamic", None)
+        if dynamic is None:
+            region = verdict.region
+        elif self.static_region is not None:
+            region = dynamic - self.static_region  # what this cycle adds to the static region
+        else:
+            region = dynamic
         self._cycles.append(
             _Cycle(
                 t=t,
                 q=q_arr,
                 person=person,
-                region=verdict.region,
+                region=manifold_arrays(region),
                 closest_points=closest,
                 min_distance=float(verdict.min_distance),
                 speed_scale=float(verdict.speed_scale),
@@ -209,15 +246,17 @@ class DemoRecorder:
         step = float(np.median(np.diff(times))) if len(times) > 1 else 1.0
         frames = (times - times[0]) * self.fps
         end = float((times[-1] - times[0] + step) * self.fps)
+        region_faces = max(12, min(self.max_faces, self.face_budget // len(kept)))
 
         vis = StaticVisualizer()
         root = vis[self.prefix]
         draw_cell(vis, self.cell, kept[0].q, robot=self.robot, prefix=self.prefix, style=self.style)
+        self._draw_static(root, kept)
         animation = ma.Animation(default_framerate=self.fps)
 
         groups: list[list[str]] = []
         for k, cycle in enumerate(kept):
-            groups.append(self._draw_cycle(root, k, cycle))
+            groups.append(self._draw_cycle(root, k, cycle, region_faces))
         if self.robot is not None:
             self._animate_robot(root, kept, frames, end, animation, groups)
         for k, paths in enumerate(groups):
@@ -234,6 +273,12 @@ class DemoRecorder:
                 with animation.at_frame(root, end) as frame:
                     frame[path].set_property("visible", "boolean", k + 1 == len(kept))
         vis.set_animation(animation, play=True, repetitions=int(repetitions))
+        vis.set_timeline(
+            frames / self.fps,
+            [f"t = {c.t:.1f} s   {distance_text(c)}" for c in kept],
+            [speed_color_hex(c.speed_scale) for c in kept],
+            end / self.fps,
+        )
         set_view(vis, self.cell, prefix=self.prefix, style=self.style)
         return vis
 
@@ -243,7 +288,34 @@ class DemoRecorder:
         return write_html(vis, path, title=title or f"polyhull demo: {self.cell.name}")
 
     # -- internals ----------------------------------------------------------------------------
-    def _draw_cycle(self, root: StaticVisualizer, k: int, cycle: _Cycle) -> list[str]:
+    def _draw_static(self, root: StaticVisualizer, kept: list[_Cycle]) -> None:
+        """The static region once: near the robot (over the run) faint, the rest hidden."""
+        node = root["regions/static"]
+        node.delete()
+        static = self.static_region
+        if static is None or static.is_empty():
+            return
+        near = None
+        if self.robot is not None:
+            spheres = [robot_sphere(self.robot, c.q) for c in kept]
+            centres = np.array([c for c, _ in spheres])
+            centre = centres.mean(axis=0)
+            radius = max(float(np.linalg.norm(c - centre)) + r for c, r in spheres)
+            near = (centre, radius + self.style.static_margin)
+        for name, part in zip(("near", "far"), split_static(static, near), strict=True):
+            if part.is_empty():
+                continue
+            v, f = cluster_decimate(*manifold_arrays(part), self.static_faces)
+            if len(f):
+                node[name].set_object(
+                    mesh_object(v, f, self.style.static_region, self.style.static_region_opacity)
+                )
+                if name == "far":
+                    node[name].set_property("visible", False)
+
+    def _draw_cycle(
+        self, root: StaticVisualizer, k: int, cycle: _Cycle, region_faces: int
+    ) -> list[str]:
         style = self.style
         paths = []
         vertices, faces = cycle.person
@@ -251,14 +323,16 @@ class DemoRecorder:
             v, f = cluster_decimate(vertices, faces, self.max_faces)
             root[f"anim/person/{k}"].set_object(mesh_object(v, f, style.person))
             paths.append(f"anim/person/{k}")
-        if not cycle.region.is_empty():
-            v, f = cluster_decimate(*manifold_arrays(cycle.region), self.max_faces)
+        vertices, faces = cycle.region
+        if len(faces):
+            v, f = cluster_decimate(vertices, faces, region_faces)
             if len(f):
                 root[f"anim/region/{k}"].set_object(
                     mesh_object(v, f, style.region, style.region_opacity)
                 )
                 paths.append(f"anim/region/{k}")
-        if draw_distance(root[f"anim/distance/{k}"], cycle):  # a cycle reads like a verdict
+        # a cycle reads like a verdict
+        if draw_distance(root[f"anim/distance/{k}"], cycle, robot=self.robot, q=cycle.q, style=style):
             paths.append(f"anim/distance/{k}")
         return paths
 

@@ -28,6 +28,8 @@ __all__ = [
     "manifold_arrays",
     "trimesh_arrays",
     "mesh_object",
+    "colored_mesh_object",
+    "tube_object",
     "feature_edges",
     "wireframe_object",
     "segments_object",
@@ -89,6 +91,51 @@ def mesh_object(
         np.asarray(faces, dtype=np.uint32).reshape(-1, 3),
     )
     return mg.Mesh(geometry, material)
+
+
+def colored_mesh_object(mesh: trimesh.Trimesh, fallback: int, opacity: float = 1.0) -> mg.Mesh:
+    """A meshcat mesh of a trimesh in its own face colours (a URDF material), else ``fallback``.
+
+    One colour over the whole mesh gives a plain material of that colour; several give
+    per-vertex colours on unshared vertices (three per face), so faces keep a flat colour.
+    """
+    vertices, faces = trimesh_arrays(mesh)
+    visual = mesh.visual
+    if not isinstance(visual, trimesh.visual.ColorVisuals) or visual.kind != "face" or len(faces) == 0:
+        return mesh_object(vertices, faces, fallback, opacity)
+    rgb = np.asarray(visual.face_colors, dtype=np.float64)[:, :3] / 255.0  # (F, 3)
+    if np.all(rgb == rgb[0]):
+        r, g, b = (int(round(float(c) * 255.0)) for c in rgb[0])
+        return mesh_object(vertices, faces, (r << 16) | (g << 8) | b, opacity)
+    flat_vertices = vertices[faces.reshape(-1)]  # (3F, 3)
+    flat_faces = np.arange(len(flat_vertices), dtype=np.uint32).reshape(-1, 3)
+    colors = np.repeat(rgb, 3, axis=0).astype(np.float32)  # (3F, 3)
+    transparent = opacity < 1.0
+    material = mg.MeshLambertMaterial(
+        color=0xFFFFFF,
+        vertexColors=True,
+        opacity=float(opacity),
+        transparent=transparent,
+        depthWrite=not transparent,
+        flatShading=True,
+    )
+    return mg.Mesh(mg.TriangularMeshGeometry(flat_vertices, flat_faces, color=colors), material)
+
+
+def tube_object(
+    start: ArrayF64 | ArrayF32, end: ArrayF64 | ArrayF32, radius: float, color: int
+) -> mg.Mesh | None:
+    """A cylinder of ``radius`` [m] from ``start`` (3,) to ``end`` (3,) [m] (world frame).
+
+    WebGL draws lines one pixel wide whatever their ``linewidth``, so a segment that must
+    read at a glance is a tube. Returns None when the points coincide.
+    """
+    a = np.asarray(start, dtype=np.float64).reshape(3)
+    b = np.asarray(end, dtype=np.float64).reshape(3)
+    if not float(np.linalg.norm(b - a)) > 1e-9:
+        return None
+    tube = trimesh.creation.cylinder(radius=float(radius), segment=np.stack([a, b]), sections=16)
+    return mesh_object(*trimesh_arrays(tube), color)
 
 
 def feature_edges(
@@ -180,9 +227,10 @@ class _TextTexture(mg.Texture):  # type: ignore[misc]
 
 
 class _SpriteMaterial(mg.Material):  # type: ignore[misc]
-    def __init__(self, texture: _TextTexture) -> None:
+    def __init__(self, texture: _TextTexture, size_attenuation: bool = True) -> None:
         super().__init__()
         self.texture = texture
+        self.size_attenuation = size_attenuation
 
     def lower(self, object_data: dict[str, Any]) -> dict[str, Any]:
         return {
@@ -191,22 +239,38 @@ class _SpriteMaterial(mg.Material):  # type: ignore[misc]
             "map": self.texture.lower_in_object(object_data),
             "transparent": True,
             "depthTest": False,
-            "sizeAttenuation": True,
+            "sizeAttenuation": self.size_attenuation,
         }
+
+
+# meshcat's default perspective camera: 75 degrees of vertical field of view.
+VIEW_FOV_DEG = 75.0
 
 
 class TextLabel(mg.Object):  # type: ignore[misc]
     """A text label that always faces the viewer (a three.js sprite with a text texture).
 
-    The label is a square of ``height`` [m] centred at the path's origin; the text runs
-    across its middle. Place it with ``set_transform``.
+    The label is a square centred at the path's origin; the text runs across its middle
+    (meshcat shrinks the font until the text fits the square's width). Place it with
+    ``set_transform``.
+
+    Args:
+        text: The text.
+        height: Side of the square [m] in the world, when ``screen_size`` is None.
+        screen_size: Side of the square as a share of the view's height, the same at
+            every distance (three.js ``sizeAttenuation = false``); overrides ``height``.
     """
 
-    def __init__(self, text: str, height: float = 0.6) -> None:
+    def __init__(self, text: str, height: float = 0.6, *, screen_size: float | None = None) -> None:
         mg.SceneElement.__init__(self)
         self.text = text
-        self.height = float(height)
-        self.material = _SpriteMaterial(_TextTexture(text))
+        self.screen_size = None if screen_size is None else float(screen_size)
+        if self.screen_size is None:
+            self.height = float(height)
+        else:
+            # Without attenuation a sprite of scale s spans s / (2 tan(fov / 2)) of the view.
+            self.height = self.screen_size * 2.0 * float(np.tan(np.deg2rad(VIEW_FOV_DEG) / 2.0))
+        self.material = _SpriteMaterial(_TextTexture(text), size_attenuation=self.screen_size is None)
 
     def lower(self) -> dict[str, Any]:
         scale = np.diag([self.height, self.height, self.height, 1.0])
@@ -229,13 +293,17 @@ class TextLabel(mg.Object):  # type: ignore[misc]
 
 # -- frames ---------------------------------------------------------------------------------
 def frame_points(
-    camera: Camera, frame: DepthFrame, max_points: int
+    camera: Camera,
+    frame: DepthFrame,
+    max_points: int,
+    bounds: tuple[ArrayF64, ArrayF64] | None = None,
 ) -> tuple[ArrayF64, ArrayF64]:
     """World points of the valid pixels of a depth frame, evenly subsampled.
 
     A pixel is valid when its depth is finite and within the camera's range [near, far]
-    (0, NaN and +-inf carry no surface). At most ``max_points`` pixels are kept, spread
-    evenly over the valid ones in row-major order.
+    (0, NaN and +-inf carry no surface). With ``bounds`` (lo (3,), hi (3,)) [m], only
+    points inside that box are kept. At most ``max_points`` points are kept, spread evenly
+    over the valid ones in row-major order.
 
     Returns:
         Points (N, 3) in the world frame [m] and their z-depths (N,) [m].
@@ -254,17 +322,27 @@ def frame_points(
     rows, cols = np.nonzero(valid)
     if max_points < 1:
         raise ValueError(f"max_points must be >= 1, got {max_points}")
-    if len(rows) > max_points:
-        pick = np.linspace(0, len(rows) - 1, max_points).round().astype(np.int64)
-        rows, cols = rows[pick], cols[pick]
     z = depth[rows, cols]
-    uv = np.column_stack([cols, rows]).astype(np.float64)
-    return camera.unproject(uv, z), z
+    points = camera.unproject(np.column_stack([cols, rows]).astype(np.float64), z)
+    if bounds is not None:
+        lo, hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in bounds)
+        inside = np.all((points >= lo) & (points <= hi), axis=1)
+        points, z = points[inside], z[inside]
+    if len(points) > max_points:
+        pick = np.linspace(0, len(points) - 1, max_points).round().astype(np.int64)
+        points, z = points[pick], z[pick]
+    return points, z
 
 
-def frame_cloud(camera: Camera, frame: DepthFrame, max_points: int, size: float) -> mg.Points | None:
+def frame_cloud(
+    camera: Camera,
+    frame: DepthFrame,
+    max_points: int,
+    size: float,
+    bounds: tuple[ArrayF64, ArrayF64] | None = None,
+) -> mg.Points | None:
     """A point cloud of a depth frame coloured by depth (near purple, far yellow), or None."""
-    points, z = frame_points(camera, frame, max_points)
+    points, z = frame_points(camera, frame, max_points, bounds)
     if len(points) == 0:
         return None
     return point_cloud_object(points, depth_colors(z, float(z.min()), float(z.max())), size)

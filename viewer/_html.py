@@ -78,6 +78,8 @@ class _Node:
 class _Scene:
     root: _Node = field(default_factory=_Node)
     animation: dict[str, Any] | None = None
+    status: tuple[str, int] | None = None  # text, colour 0xRRGGBB
+    timeline: dict[str, Any] | None = None  # times [s], texts, colours (one per cycle)
 
 
 class StaticVisualizer:
@@ -142,6 +144,50 @@ class StaticVisualizer:
         if parent is not None:
             parent.children.pop(entries[-1], None)
 
+    # -- the page's status line (HTML only) ----------------------------------------------------
+    def set_status(self, text: str, color: int = 0x000000) -> None:
+        """The status line shown as HTML text over the view (``#polyhull-status``).
+
+        ``color`` (``0xRRGGBB``) is the colour of the swatch before the text.
+        """
+        self._scene.status = (str(text), int(color))
+
+    def set_timeline(
+        self, times: Any, texts: list[str], colors: list[int], duration: float
+    ) -> None:
+        """A status line per animation cycle, and a progress bar (``#polyhull-timeline``).
+
+        Args:
+            times: Start of each cycle in animation time [s], increasing (N,).
+            texts: The status line of each cycle (N).
+            colors: The swatch colour of each cycle (N), ``0xRRGGBB``.
+            duration: Length of the animation [s].
+        """
+        t = [float(x) for x in np.asarray(times, dtype=np.float64).reshape(-1)]
+        if not (len(t) == len(texts) == len(colors)) or not t:
+            raise ValueError(
+                f"set_timeline: need as many times ({len(t)}), texts ({len(texts)}) and "
+                f"colours ({len(colors)}), at least one"
+            )
+        if any(b <= a for a, b in zip(t, t[1:], strict=False)):
+            raise ValueError("set_timeline: times must increase")
+        self._scene.timeline = {
+            "times": t,
+            "texts": [str(x) for x in texts],
+            "colors": [f"#{int(c):06x}" for c in colors],
+            "duration": float(duration),
+        }
+
+    @property
+    def status(self) -> tuple[str, int] | None:
+        """The status line (text, colour), if any."""
+        return self._scene.status
+
+    @property
+    def timeline(self) -> dict[str, Any] | None:
+        """The per-cycle status lines of the animation, if any."""
+        return self._scene.timeline
+
     # -- inspection ---------------------------------------------------------------------------
     def object_paths(self) -> list[str]:
         """Paths (``/polyhull/robot/link_1``) that hold an object, in drawing order."""
@@ -181,15 +227,33 @@ class StaticVisualizer:
     def static_html(self, title: str = "polyhull") -> str:
         """The scene as one standalone HTML document (meshcat bundle inline, no server)."""
         blobs = [base64.b64encode(umsgpack.packb(cmd)).decode("ascii") for cmd in self.commands()]
+        status = self._scene.status
+        timeline = self._scene.timeline
+        if timeline is not None:  # the status line follows the animation
+            text, color = timeline["texts"][0], timeline["colors"][0]
+        elif status is not None:
+            text, color = status[0], f"#{status[1]:06x}"
+        else:
+            text, color = "", "#000000"
         return _HTML_TEMPLATE.format(
             title=_escape_html(title),
             bundle=meshcat_bundle(),
             commands=json.dumps(blobs),
+            status=_escape_html(text),
+            status_display="flex" if text else "none",
+            swatch=color,
+            timeline_display="block" if timeline else "none",
+            timeline=_script_json(timeline),
         )
 
 
 def _escape_html(text: str) -> str:
     return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def _script_json(value: Any) -> str:
+    """JSON safe inside a <script> element (no '</' can close it)."""
+    return json.dumps(value).replace("</", "<\\/")
 
 
 @functools.cache
@@ -209,7 +273,9 @@ def meshcat_bundle() -> str:
 
 
 # The commands are decoded synchronously and in order (meshcat's own static HTML fetches
-# data: URLs, whose promises may resolve out of order).
+# data: URLs, whose promises may resolve out of order). The status line sits over the view;
+# with a timeline it follows the animation's time (meshcat's animator), the animation
+# controls are shown open, and the animation redraws at 20 Hz.
 _HTML_TEMPLATE = """<!DOCTYPE html>
 <html>
 <head>
@@ -218,10 +284,23 @@ _HTML_TEMPLATE = """<!DOCTYPE html>
 <style>
 body {{ margin: 0; }}
 #meshcat-pane {{ width: 100vw; height: 100vh; overflow: hidden; }}
+#polyhull-overlay {{ position: absolute; left: 12px; top: 12px; max-width: 60vw;
+  font: 16px/1.35 sans-serif; color: #111; pointer-events: none; }}
+#polyhull-status {{ display: {status_display}; align-items: center; gap: 8px;
+  background: rgba(255, 255, 255, 0.85); padding: 6px 10px; border-radius: 4px; }}
+#polyhull-swatch {{ width: 14px; height: 14px; border-radius: 7px; flex: none;
+  background: {swatch}; }}
+#polyhull-timeline {{ display: {timeline_display}; margin-top: 6px; height: 6px; width: 320px;
+  background: rgba(0, 0, 0, 0.15); border-radius: 3px; }}
+#polyhull-progress {{ height: 100%; width: 0%; background: #333; border-radius: 3px; }}
 </style>
 </head>
 <body>
 <div id="meshcat-pane"></div>
+<div id="polyhull-overlay">
+<div id="polyhull-status"><span id="polyhull-swatch"></span><span id="polyhull-text">{status}</span></div>
+<div id="polyhull-timeline"><div id="polyhull-progress"></div></div>
+</div>
 <script>
 {bundle}
 </script>
@@ -235,6 +314,39 @@ var viewer = new MeshCat.Viewer(document.getElementById("meshcat-pane"));
     for (var j = 0; j < text.length; j++) {{ bytes[j] = text.charCodeAt(j); }}
     viewer.handle_command_bytearray(bytes);
   }}
+}})();
+(function () {{
+  var timeline = {timeline};
+  if (!timeline) {{ return; }}
+  viewer.gui.open();
+  // The animation advances (and the scene redraws) at most 20 times a second: smooth enough
+  // for cycles of a tenth of a second or more, and a third of the drawing at 60 Hz, which
+  // is what a browser without a GPU (software WebGL) spends its time on.
+  var animator = viewer.animator, advance = animator.update.bind(animator), last = -Infinity;
+  animator.update = function () {{
+    var now = performance.now();
+    if (now - last < 50) {{ return; }}
+    last = now;
+    advance();
+  }};
+  var text = document.getElementById("polyhull-text");
+  var swatch = document.getElementById("polyhull-swatch");
+  var progress = document.getElementById("polyhull-progress");
+  var shown = -1;
+  function update() {{
+    var t = viewer.animator ? viewer.animator.time : 0;
+    var k = 0;
+    while (k + 1 < timeline.times.length && timeline.times[k + 1] <= t) {{ k++; }}
+    if (k !== shown) {{
+      text.textContent = timeline.texts[k];
+      swatch.style.background = timeline.colors[k];
+      shown = k;
+    }}
+    var share = timeline.duration > 0 ? Math.min(1, Math.max(0, t / timeline.duration)) : 0;
+    progress.style.width = (100 * share).toFixed(1) + "%";
+    requestAnimationFrame(update);
+  }}
+  update();
 }})();
 </script>
 </body>

@@ -1,23 +1,33 @@
 """Drawing a cell, its frames, regions and a verdict into a meshcat scene tree.
 
-Every item has its own path, so the meshcat UI can toggle it ("Open Controls" > Scene)::
+The default scene tells the story at a glance: the robot in its colours, what moves near
+it (the dynamic region) in a saturated colour, the distance as a thick segment with a
+label; the rest is faint or hidden. Every item has its own path, so the meshcat UI can
+toggle it ("Open Controls" > Scene); "hidden" items start with ``visible = false``::
 
     <prefix>/cell/zone                      wireframe of the work cell Z
-    <prefix>/cell/obstacles/<name>          static objects
-    <prefix>/robot/<link>                   robot links at q (orange)
-    <prefix>/cameras/<name>/frustum         frustum V(i), clipped to Z, as lines
+    <prefix>/cell/obstacles/<name>          static objects (grey)
+    <prefix>/robot/<link>                   robot links at q, URDF colours (orange if none)
+    <prefix>/cameras/<name>/frustum         frustum V(i), clipped to Z, as thin lines
     <prefix>/cameras/<name>/body            a small box at the camera centre
-    <prefix>/cameras/<name>/label           the camera's name
-    <prefix>/frames/<camera>                a depth frame as a point cloud (colour = depth)
-    <prefix>/regions/camera/<name>          each camera's possibly occupied region C(i)
-    <prefix>/regions/hull                   the depth hull C
-    <prefix>/regions/robot_occlusion        the robot occlusion M
-    <prefix>/regions/region                 the region R given to the controller
-    <prefix>/regions/removed/<k>_<rule>     components removed by a plausibility rule
-    <prefix>/distance/segment               closest pair region - robot (colour = speed)
+    <prefix>/cameras/<name>/label           the camera's name (one size on screen)
+    <prefix>/frames/<camera>                hidden: a depth frame as a point cloud,
+                                            subsampled, clipped to Z (colour = depth)
+    <prefix>/regions/dynamic                this cycle's part of R (people, new objects)
+    <prefix>/regions/static/near            the static part of R near the robot, faint
+    <prefix>/regions/static/far             hidden: the static part of R beyond that
+    <prefix>/regions/robot_occlusion        hidden: the robot occlusion M (blue)
+    <prefix>/regions/hull                   hidden: the depth hull C
+    <prefix>/regions/camera/<name>          hidden: each camera's region C(i)
+    <prefix>/regions/removed/<k>_<rule>     hidden: components removed by a rule
+    <prefix>/distance/segment               closest pair region - robot, a tube coloured
+                                            by the speed scale (red stop, green full)
+    <prefix>/distance/closest_link          a shell around the closest link, same colour
+    <prefix>/distance/label                 "0.84 m to link_3, speed 62 %"
 
-All geometry is drawn in the world frame of the cell. The functions work on a
-``meshcat.Visualizer`` (live) or a :class:`~polyhull_viewer.StaticVisualizer` (HTML).
+A :class:`~polyhull_viewer.StaticVisualizer` also shows the distance line as HTML text over
+the view (``#polyhull-status``). All geometry is drawn in the world frame of the cell. The
+functions work on a ``meshcat.Visualizer`` (live) or a ``StaticVisualizer`` (HTML).
 """
 
 from __future__ import annotations
@@ -37,16 +47,18 @@ from polyhull.typed import ArrayF64
 
 from ._colors import STYLE, Style, camera_color, hex_to_rgb, speed_color_hex
 from ._geometry import (
+    VIEW_FOV_DEG,
     TextLabel,
+    colored_mesh_object,
     frame_cloud,
     manifold_arrays,
     mesh_object,
     safe_name,
-    segments_object,
     trimesh_arrays,
+    tube_object,
     wireframe_object,
 )
-from ._html import VisualizerLike
+from ._html import StaticVisualizer, VisualizerLike
 
 __all__ = [
     "DEFAULT_PREFIX",
@@ -60,7 +72,11 @@ __all__ = [
     "draw_verdict",
     "draw_distance",
     "draw_manifold",
+    "draw_static_region",
+    "split_static",
     "draw_scene",
+    "distance_text",
+    "robot_sphere",
     "set_view",
     "view_pose",
 ]
@@ -158,18 +174,35 @@ def draw_robot(
 ) -> list[str]:
     """Draw each link of ``robot`` at joint positions ``q`` [rad] under ``vis``/<link>.
 
+    Links are opaque, in their URDF material colours; a link without one is orange
+    (``style.robot``).
+
     Returns:
         The names of the links drawn.
     """
     vis.delete()
     names = []
     for link, mesh in robot.visual_meshes(np.asarray(q, dtype=np.float64)).items():
-        vertices, faces = trimesh_arrays(mesh)
-        if len(faces) == 0:
+        if len(mesh.faces) == 0:
             continue
-        vis[safe_name(link)].set_object(mesh_object(vertices, faces, style.robot))
+        vis[safe_name(link)].set_object(colored_mesh_object(mesh, style.robot))
         names.append(link)
     return names
+
+
+def robot_sphere(robot: RobotLike, q: ArrayF64 | Sequence[float]) -> tuple[ArrayF64, float]:
+    """A sphere around the robot's visual geometry at ``q``: centre (3,) [m] and radius [m].
+
+    The centre is that of the geometry's bounding box; the radius reaches its farthest
+    vertex.
+    """
+    meshes = robot.visual_meshes(np.asarray(q, dtype=np.float64))
+    vertices = [np.asarray(m.vertices, dtype=np.float64).reshape(-1, 3) for m in meshes.values()]
+    points = np.concatenate(vertices + [np.zeros((0, 3))])
+    if len(points) == 0:
+        return np.zeros(3), 0.0
+    centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+    return centre, float(np.linalg.norm(points - centre, axis=1).max())
 
 
 def _resolve_robot(cell: Cell, robot: RobotLike | None) -> RobotLike | None:
@@ -202,7 +235,7 @@ def draw_cell(
         prefix: Root path of everything drawn.
         clip_frustums: Draw each frustum V(i) intersected with Z (what the camera covers
             in the cell) rather than out to its far plane.
-        labels: Draw the cameras' names.
+        labels: Draw the cameras' names (all of one size on screen).
         style: Colours.
     """
     root = vis[prefix]
@@ -248,8 +281,8 @@ def draw_cell(
         body.apply_transform(camera.T_world_camera)
         node["body"].set_object(mesh_object(*trimesh_arrays(body), style.camera_body))
         if labels:
-            node["label"].set_object(TextLabel(camera.name, height=0.8))
-            node["label"].set_transform(_translation(camera.center + np.array([0.0, 0.0, 0.25])))
+            node["label"].set_object(TextLabel(camera.name, screen_size=style.camera_label_size))
+            node["label"].set_transform(_translation(camera.center + np.array([0.0, 0.0, 0.2])))
 
 
 def draw_frames(
@@ -258,16 +291,22 @@ def draw_frames(
     frames: Mapping[str, DepthFrame],
     *,
     prefix: str = DEFAULT_PREFIX,
-    max_points: int = 20_000,
+    max_points: int = 5_000,
+    visible: bool = False,
     style: Style = STYLE,
 ) -> list[str]:
     """Draw each depth frame as a point cloud under ``<prefix>/frames/<camera>``.
 
-    Valid pixels (finite, within the camera's range) are unprojected to the world, at most
-    ``max_points`` per camera spread evenly over the image, and coloured by depth.
+    Valid pixels (finite, within the camera's range) are unprojected to the world and
+    clipped to the zone Z; at most ``max_points`` per camera are kept, spread evenly over
+    the image, and coloured by depth.
+
+    Args:
+        visible: Initial visibility of the group ``<prefix>/frames`` (hidden by default:
+            the points cover everything else; switch them on in the meshcat controls).
 
     Returns:
-        The cameras drawn (a frame without a valid pixel draws nothing).
+        The cameras drawn (a frame without a valid pixel in Z draws nothing).
 
     Raises:
         FrameError: A frame names a camera the cell does not have, or has the wrong shape.
@@ -278,12 +317,15 @@ def draw_frames(
         raise FrameError(f"frames of unknown cameras {unknown}; the cell has {sorted(names)}")
     root = vis[prefix]["frames"]
     root.delete()
+    bounds = (np.asarray(cell.zone.min, dtype=np.float64), np.asarray(cell.zone.max, dtype=np.float64))
     drawn = []
     for name, frame in frames.items():
-        cloud = frame_cloud(cell.camera(name), frame, max_points, style.point_size)
+        cloud = frame_cloud(cell.camera(name), frame, max_points, style.point_size, bounds)
         if cloud is not None:
             root[safe_name(name)].set_object(cloud)
             drawn.append(name)
+    if drawn:
+        _set_visible(root, visible)
     return drawn
 
 
@@ -317,35 +359,119 @@ def draw_camera_regions(
             _set_visible(node, visible)
 
 
+def split_static(
+    static: m3.Manifold, near: tuple[ArrayF64, float] | None
+) -> tuple[m3.Manifold, m3.Manifold]:
+    """The static region inside and outside the ball ``near`` (centre (3,) [m], radius [m]).
+
+    Without a ball, all of it is inside.
+    """
+    if near is None:
+        return static, m3.Manifold()
+    centre, radius = near
+    ball = m3.Manifold.sphere(float(radius), 64).translate(tuple(float(x) for x in centre))
+    return static ^ ball, static - ball
+
+
+def draw_static_region(
+    vis: VisualizerLike,
+    static: m3.Manifold | None,
+    *,
+    near: tuple[ArrayF64, float] | None = None,
+    style: Style = STYLE,
+) -> tuple[bool, bool]:
+    """Draw the static part of R (blind space, static shadows) as a faint tint.
+
+    Args:
+        vis: The path to draw at (``<prefix>/regions/static``).
+        static: The static region (``Monitor.static.region``), or None.
+        near: Centre (3,) [m] and radius [m] of a ball around the robot: the part inside
+            is drawn at ``near`` (visible), the rest at ``far`` (hidden). Without it, all
+            of it is drawn at ``near``.
+        style: Colour and opacity.
+
+    Returns:
+        Whether ``near`` and ``far`` were drawn.
+    """
+    vis.delete()
+    if static is None or static.is_empty():
+        return False, False
+    inside, outside = split_static(static, near)
+    drew_near = draw_manifold(vis["near"], inside, style.static_region, style.static_region_opacity)
+    drew_far = draw_manifold(vis["far"], outside, style.static_region, style.static_region_opacity)
+    if drew_far:
+        _set_visible(vis["far"], False)
+    return drew_near, drew_far
+
+
 def draw_verdict(
     vis: VisualizerLike,
     verdict: VerdictLike,
     *,
     prefix: str = DEFAULT_PREFIX,
+    robot: RobotLike | None = None,
+    static_region: m3.Manifold | None = None,
+    hull: bool = True,
+    occlusion: bool = True,
     style: Style = STYLE,
 ) -> None:
-    """Draw one verdict of the monitor: C, M, R, the removed components and the distance.
+    """Draw one verdict of the monitor: the region (dynamic, static), M, C, removed, distance.
 
-    C (blue), M (purple) and R (red) are see-through so nested regions stay visible; an
-    empty region deletes its path. The closest-distance segment joins the point of R and
-    the point of the robot, coloured by the speed scale (red = stop, yellow, green = full
-    speed), with a label giving the distance, the link and the speed.
+    The dynamic region (``verdict.region_dynamic``: people, new objects; minus
+    ``static_region`` when given) is drawn in a saturated colour; the static region
+    (``static_region``, or ``region`` minus ``region_dynamic``) as a faint tint near the
+    robot and hidden beyond; together they are all of ``region``. M, C and the
+    removed components are drawn hidden. A verdict without ``region_dynamic`` has its
+    whole ``region`` drawn as dynamic. The closest-distance segment joins the point of R
+    and the point of the robot, coloured by the speed scale (red = stop, yellow, green =
+    full speed), with the closest link outlined and a label giving the distance, the link
+    and the speed.
 
     Args:
         vis: A meshcat visualizer (e.g. your controller's), or a :class:`StaticVisualizer`.
         verdict: A ``polyhull.monitor.Verdict`` (or anything with its fields).
         prefix: Root path; use the prefix of :func:`draw_cell` so both share the frame.
+        robot: The robot model: the static region is split at ``style.static_margin``
+            around it, and the closest link is outlined. Without it, the static region is
+            drawn whole and no link is outlined.
+        static_region: The static part of R (``Monitor.static.region``); computed as
+            ``region - region_dynamic`` when None.
+        hull: Draw C (``verdict.hull``; building it costs a mesh boolean).
+        occlusion: Draw M (``verdict.robot_occlusion``; building it costs several).
         style: Colours.
     """
     regions = vis[prefix]["regions"]
-    draw_manifold(regions["hull"], verdict.hull, style.hull, style.hull_opacity)
-    draw_manifold(
-        regions["robot_occlusion"],
-        verdict.robot_occlusion,
-        style.robot_occlusion,
-        style.robot_occlusion_opacity,
-    )
-    draw_manifold(regions["region"], verdict.region, style.region, style.region_opacity)
+    dynamic = getattr(verdict, "region_dynamic", None)
+    if dynamic is None:
+        dynamic, static = verdict.region, None
+    elif static_region is not None:
+        # What this cycle adds to the static region: the noise sheets restored under a
+        # kept piece partly lie in the static region already, and are drawn with it.
+        dynamic, static = dynamic - static_region, static_region
+    else:
+        static = verdict.region - dynamic
+    draw_manifold(regions["dynamic"], dynamic, style.region, style.region_opacity)
+    q = getattr(verdict, "q", None)
+    has_q = q is not None and len(q) > 0
+    near = None
+    if robot is not None and q is not None and has_q:
+        centre, radius = robot_sphere(robot, q)
+        near = (centre, radius + style.static_margin)
+    draw_static_region(regions["static"], static, near=near, style=style)
+    for name, wanted, color, opacity, getter in (
+        ("hull", hull, style.hull, style.hull_opacity, lambda: verdict.hull),
+        (
+            "robot_occlusion",
+            occlusion,
+            style.robot_occlusion,
+            style.robot_occlusion_opacity,
+            lambda: verdict.robot_occlusion,
+        ),
+    ):
+        if wanted and draw_manifold(regions[name], getter(), color, opacity):
+            _set_visible(regions[name], False)
+        elif not wanted:
+            regions[name].delete()
     removed = regions["removed"]
     removed.delete()
     for k, component in enumerate(verdict.removed):
@@ -355,65 +481,139 @@ def draw_verdict(
             style.removed,
             style.removed_opacity,
         )
-    draw_distance(vis[prefix]["distance"], verdict)
+    if len(verdict.removed):
+        _set_visible(removed, False)
+    draw_distance(
+        vis[prefix]["distance"], verdict, robot=robot if has_q else None, q=q, style=style
+    )
 
 
-def draw_distance(vis: VisualizerLike, verdict: DistanceLike) -> bool:
+def distance_text(verdict: DistanceLike) -> str:
+    """The distance line: ``0.84 m to link_3, speed 62 %`` (or what holds instead)."""
+    speed = f"speed {100.0 * _clipped(verdict.speed_scale):.0f} %"
+    if not np.isfinite(verdict.min_distance):
+        return f"no possibly occupied region near the robot, {speed}"
+    link = f" to {verdict.closest_link}" if verdict.closest_link else ""
+    return f"{verdict.min_distance:.2f} m{link}, {speed}"
+
+
+def _clipped(speed_scale: float) -> float:
+    s = float(speed_scale)
+    return 0.0 if np.isnan(s) else min(max(s, 0.0), 1.0)
+
+
+def draw_distance(
+    vis: VisualizerLike,
+    verdict: DistanceLike,
+    *,
+    robot: RobotLike | None = None,
+    q: ArrayF64 | Sequence[float] | None = None,
+    style: Style = STYLE,
+) -> bool:
     """Draw the closest-distance segment of ``verdict`` at ``vis``, or delete it.
+
+    The segment is a tube in the colour of the speed scale with a ball at each end, the
+    closest link (given ``robot`` and ``q``) gets a shell of the same colour, and a label
+    of fixed screen size says :func:`distance_text`. On a :class:`StaticVisualizer` the
+    same text is the page's status line (``#polyhull-status``).
 
     Returns:
         True when a segment was drawn (there are closest points and the distance is finite).
     """
     vis.delete()
+    color = speed_color_hex(verdict.speed_scale)
+    text = distance_text(verdict)
+    if isinstance(vis, StaticVisualizer):
+        vis.set_status(text, color)
     points = verdict.closest_points
     if points is None or not np.isfinite(verdict.min_distance):
         return False
     p = np.asarray(points, dtype=np.float64).reshape(2, 3)
     if not np.all(np.isfinite(p)):
         return False
-    color = speed_color_hex(verdict.speed_scale)
-    vis["segment"].set_object(segments_object(p, color))
+    tube = tube_object(p[0], p[1], style.segment_radius, color)
+    if tube is not None:
+        vis["segment"].set_object(tube)
     for name, point in (("region_point", p[0]), ("robot_point", p[1])):
-        vis[name].set_object(mg.Sphere(0.04), mg.MeshLambertMaterial(color=color))
+        vis[name].set_object(mg.Sphere(2.0 * style.segment_radius), mg.MeshLambertMaterial(color=color))
         vis[name].set_transform(_translation(point))
-    link = f" to {verdict.closest_link}" if verdict.closest_link else ""
-    text = f"{verdict.min_distance:.2f} m{link}, speed {100.0 * verdict.speed_scale:.0f} %"
-    vis["label"].set_object(TextLabel(text, height=2.0))
-    vis["label"].set_transform(_translation(p.mean(axis=0) + np.array([0.0, 0.0, 0.15])))
+    if robot is not None and q is not None and verdict.closest_link:
+        mesh = robot.visual_meshes(np.asarray(q, dtype=np.float64)).get(verdict.closest_link)
+        if mesh is not None and len(mesh.faces):
+            shell = np.asarray(mesh.vertices) + 0.015 * np.asarray(mesh.vertex_normals)
+            vis["closest_link"].set_object(
+                mesh_object(shell, np.asarray(mesh.faces), color, style.closest_link_opacity)
+            )
+    vis["label"].set_object(TextLabel(text, screen_size=style.distance_label_size))
+    vis["label"].set_transform(_translation(p.mean(axis=0) + np.array([0.0, 0.0, 0.25])))
     return True
 
 
 # -- the view -------------------------------------------------------------------------------
-def view_pose(cell: Cell) -> tuple[ArrayF64, ArrayF64]:
+def _view_target(cell: Cell) -> ArrayF64:
+    """What the default view looks at: the robot at working height, else the zone's floor centre."""
+    lo, hi = np.asarray(cell.zone.min, dtype=np.float64), np.asarray(cell.zone.max, dtype=np.float64)
+    if cell.robot is not None:
+        base = np.asarray(cell.robot.base, dtype=np.float64).reshape(-1)[:3]
+        height = min(0.6, 0.5 * float(hi[2] - lo[2]))
+        return np.array([base[0], base[1], lo[2] + height])
+    return np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, lo[2]])
+
+
+def view_pose(cell: Cell, aspect: float = 4.0 / 3.0) -> tuple[ArrayF64, ArrayF64]:
     """Where the default view puts the scene and the viewer's camera.
 
     meshcat 0.3's orbit controls always orbit the scene origin, so the view moves the cell
-    instead of the camera: the floor centre of Z goes to the origin.
+    instead of the camera: the view's target (the robot at working height, or the floor
+    centre of Z without a robot) goes to the origin. The eye looks at it from beyond the
+    zone's upper front-right corner (+x, -y, top), as far back as it takes for all of Z to
+    fit in a view of meshcat's 75 degree vertical field of view and ``aspect``
+    (width / height), with a margin.
 
     Returns:
         ``T_scene_world`` (4, 4), the transform applied to the prefix, and the viewer
-        camera's position in the scene frame (3,) [m], looking at the origin from the
-        front-right, above.
+        camera's position in the scene frame (3,) [m], looking at the origin.
     """
-    lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
-    floor_centre = np.array([(lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0, lo[2]])
-    T_scene_world = _translation(-floor_centre)
-    radius = 0.5 * float(np.linalg.norm(hi - lo))
-    direction = np.array([0.55, -1.0, 0.8])
-    eye = direction / np.linalg.norm(direction) * (1.85 * radius)
-    return T_scene_world, eye
+    lo, hi = np.asarray(cell.zone.min, dtype=np.float64), np.asarray(cell.zone.max, dtype=np.float64)
+    target = _view_target(cell)
+    T_scene_world = _translation(-target)
+    corner = np.array([hi[0], lo[1], hi[2]])
+    direction = corner - target
+    # Not straight down a diagonal: lift the eye a little above the corner.
+    direction = direction / np.linalg.norm(direction) + np.array([0.0, 0.0, 0.25])
+    direction /= np.linalg.norm(direction)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    corners = corners - target
+    forward = -direction
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan_v = np.tan(np.deg2rad(VIEW_FOV_DEG) / 2.0) * 0.92  # margin: 8 % of the half-view
+    tan_h = tan_v * aspect
+    distance = 0.25 * float(np.linalg.norm(corner - target))  # from close in, back off
+    for _ in range(200):
+        eye = direction * distance
+        d = corners - eye
+        z = d @ forward
+        if np.all(z > 0) and np.all(np.abs(d @ right) <= z * tan_h) and np.all(np.abs(d @ up) <= z * tan_v):
+            break
+        distance *= 1.03
+    return T_scene_world, direction * distance
 
 
 def set_view(
     vis: VisualizerLike, cell: Cell, *, prefix: str = DEFAULT_PREFIX, style: Style = STYLE
 ) -> None:
-    """Centre the cell on the meshcat origin, look at it from above, front-right.
+    """Centre the view's target on the meshcat origin; look at it from a corner of the zone.
 
-    The transform of ``prefix``, the default camera and the background colours change;
-    the geometry under ``prefix`` stays in world coordinates.
+    The transform of ``prefix``, meshcat's grid (moved to the zone's floor), the default
+    camera and the background colours change; the geometry under ``prefix`` stays in
+    world coordinates.
     """
     T_scene_world, eye = view_pose(cell)
     vis[prefix].set_transform(T_scene_world)
+    floor = _translation(np.array([0.0, 0.0, float(cell.zone.min[2]) + T_scene_world[2, 3]]))
+    vis["/Grid"].set_transform(floor)
     # The camera lives in meshcat's y-up frame: scene (x, y, z) is (x, z, -y) there.
     position = [float(eye[0]), float(eye[2]), float(-eye[1])]
     vis["/Cameras/default/rotated/<object>"].set_property("position", position)
@@ -430,20 +630,23 @@ def draw_scene(
     frames: Mapping[str, DepthFrame] | None = None,
     verdict: VerdictLike | None = None,
     camera_regions: Mapping[str, m3.Manifold] | None = None,
+    static_region: m3.Manifold | None = None,
     robot: RobotLike | None = None,
     prefix: str = DEFAULT_PREFIX,
-    max_points: int = 20_000,
+    max_points: int = 5_000,
     style: Style = STYLE,
 ) -> None:
     """Draw everything known about one moment of a cell and set the default view.
 
     The robot is drawn at ``q``, else at the verdict's ``q``, else at the cell's default.
     Each part is drawn by the function of the same name: :func:`draw_cell`,
-    :func:`draw_frames`, :func:`draw_camera_regions`, :func:`draw_verdict`.
+    :func:`draw_frames`, :func:`draw_camera_regions`, :func:`draw_verdict` (with
+    ``static_region``, e.g. ``Monitor.static.region``).
     """
     if q is None and verdict is not None and verdict.q is not None and len(verdict.q) > 0:
         q = np.asarray(verdict.q, dtype=np.float64)
-    draw_cell(vis, cell, q, robot=robot, prefix=prefix, style=style)
+    resolved = _resolve_robot(cell, robot)
+    draw_cell(vis, cell, q, robot=resolved, prefix=prefix, style=style)
     if frames is not None:
         draw_frames(vis, cell, frames, prefix=prefix, max_points=max_points, style=style)
     if camera_regions is not None:
@@ -451,5 +654,7 @@ def draw_scene(
         colors = {name: camera_color(order.get(name, i)) for i, name in enumerate(camera_regions)}
         draw_camera_regions(vis, camera_regions, prefix=prefix, colors=colors, style=style)
     if verdict is not None:
-        draw_verdict(vis, verdict, prefix=prefix, style=style)
+        draw_verdict(
+            vis, verdict, prefix=prefix, robot=resolved, static_region=static_region, style=style
+        )
     set_view(vis, cell, prefix=prefix, style=style)

@@ -3,16 +3,19 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
+import json
 import math
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import MissingExtraError, PolyhullError
 
-__all__ = ["register", "robot_motion", "person_path"]
+__all__ = ["register", "robot_motion", "person_path", "TrueDistance"]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -23,17 +26,56 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         description=(
             "Simulate the embedded default cell (the paper's 6 m x 6 m x 3.5 m cell, four depth "
             "cameras): a person walks in from the boundary, comes close to the working robot and "
-            "leaves. Prints a line per cycle (distance, speed scale, cycle time), a summary, and "
-            "writes an animated standalone HTML meshcat scene (viewer extra)."
+            "leaves. Prints a line per cycle (distance, speed scale, cycle time), a summary, "
+            "writes an animated standalone HTML meshcat scene (viewer extra) and a timeline plot "
+            "(PNG: distance, protective separation distance, the person's true distance, speed "
+            "scale and cycle time against time; placement extra)."
         ),
     )
     p.add_argument("--cell", type=Path, default=None, help="cell file (default: the embedded paper cell)")
     p.add_argument("--cycles", type=int, default=12, help="number of cycles (default 12)")
     p.add_argument("--dt", type=float, default=0.3, help="simulated time between cycles [s] (default 0.3)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
-    p.add_argument("--html", type=Path, default=Path("polyhull-demo.html"), help="animated HTML output")
+    p.add_argument("--html", type=Path, default=Path("polyhull-demo.html"), help="animated HTML output (default: %(default)s)")
     p.add_argument("--no-html", action="store_true", help="do not write the HTML scene")
+    p.add_argument(
+        "--plot", type=Path, default=Path("polyhull-demo.png"), metavar="OUT.png", help="timeline plot, PNG (default: %(default)s)"
+    )
+    p.add_argument("--no-plot", action="store_true", help="do not write the timeline plot")
+    p.add_argument(
+        "--records", type=Path, default=None, metavar="OUT.json",
+        help="also write the timeline records (one JSON object per cycle) to this file",
+    )
     p.set_defaults(func=_run)
+
+
+class TrueDistance:
+    """The true distance [m] between a target mesh and the robot's moving links (python-fcl).
+
+    A link is moving when its pose changes with q (checked at two joint vectors inside the
+    limits); fixed links (the base) are static solids the monitor does not measure to.
+    """
+
+    def __init__(self, robot: Any) -> None:
+        from ..distance import RobotDistanceModel
+
+        lower, upper = np.asarray(robot.lower, dtype=np.float64), np.asarray(robot.upper, dtype=np.float64)
+        lo = np.where(np.isfinite(lower), lower, -1.0)
+        hi = np.where(np.isfinite(upper), upper, 1.0)
+        a = robot.link_transforms(lo + 0.3 * (hi - lo))
+        b = robot.link_transforms(lo + 0.7 * (hi - lo))
+        moving = {name for name in a if not np.allclose(a[name], b[name], atol=1e-9)}
+        geometry = robot.link_geometry()
+        self._robot = robot
+        self._model = RobotDistanceModel({n: m for n, m in geometry.items() if n in moving})
+
+    def __call__(self, q: np.ndarray, target: Any) -> float:
+        """Distance [m] from ``target`` (a trimesh in the world frame) to the robot at ``q``."""
+        from ..cell import mesh_to_manifold
+
+        return float(
+            self._model.distance(self._robot.link_transforms(q), region=mesh_to_manifold(target, "person")).distance
+        )
 
 
 def robot_motion(q0: np.ndarray, lower: np.ndarray, upper: np.ndarray, t: float) -> np.ndarray:
@@ -59,61 +101,93 @@ def person_path(zone_min: np.ndarray, zone_max: np.ndarray, robot_xy: np.ndarray
     return lambda t: walk_in.mesh(t) if t < half else walk_out.mesh(t)
 
 
+def _check_extra(module: str, feature: str, extra: str, flag: str) -> None:
+    if importlib.util.find_spec(module) is None:
+        raise MissingExtraError(f"{feature} (or pass {flag})", extra)
+
+
 def _run(args: argparse.Namespace) -> int:
     from ..cellfile import default_cell_path, load_cell
     from ..monitor import Monitor
     from ..robot import Robot
     from ..simulator import Simulator
+    from ..timeline import plot_timeline, record_of
 
     if args.cycles < 1:
         raise PolyhullError(f"--cycles must be >= 1, got {args.cycles}")
     if not (math.isfinite(args.dt) and args.dt > 0):
         raise PolyhullError(f"--dt must be > 0 s, got {args.dt}")
+    if not args.no_plot:
+        if args.plot.suffix.lower() != ".png":
+            raise PolyhullError(f"--plot {args.plot}: the timeline plot is a PNG; give a path ending in .png")
+        _check_extra("matplotlib", "the demo's timeline plot", "placement", "--no-plot")
     cell_path = args.cell or default_cell_path()
     cell = load_cell(cell_path)
     if cell.robot is None:
         raise PolyhullError(f"{cell_path}: the demo needs a cell with a [robot]")
-    recorder = None
+    recorder_class = None
     if not args.no_html:
         try:
             from polyhull_viewer import DemoRecorder
         except ImportError as exc:
             raise MissingExtraError("the demo's HTML scene (or pass --no-html)", "viewer") from exc
-        recorder = DemoRecorder(cell)
+        recorder_class = DemoRecorder
     print(f"polyhull demo: {cell.name} ({len(cell.cameras)} cameras), {args.cycles} cycles", flush=True)
-    t0 = time.perf_counter()
+    t_start = t0 = time.perf_counter()
     robot = Robot.from_spec(cell.robot)
     sim = Simulator(cell, robot=robot)
     monitor = Monitor(cell, references=sim.reference(), robot=robot)
+    true_distance = TrueDistance(robot)
+    recorder = None if recorder_class is None else recorder_class(cell, robot=robot, static_region=monitor.static.region)
     print(f"precomputed references and static regions in {time.perf_counter() - t0:.1f} s", flush=True)
     q0 = np.asarray(cell.robot.q, dtype=np.float64)
     duration = args.cycles * args.dt
     person_at = person_path(np.asarray(cell.zone.min), np.asarray(cell.zone.max), np.asarray(cell.robot.base[:2]), duration)
-    cycle_ms, distances, scales = [], [], []
-    print(f"{'t [s]':>6} {'distance [m]':>12} {'closest link':>13} {'speed':>6} {'cycle [ms]':>10}  faults")
+    records: list[dict[str, Any]] = []
+    print(f"{'t [s]':>6} {'distance [m]':>12} {'true [m]':>8} {'closest link':>13} {'speed':>6} {'cycle [ms]':>10}  faults")
     for k in range(args.cycles):
         t = k * args.dt
         q = robot_motion(q0, robot.lower, robot.upper, t)
         person = person_at(t)  # type: ignore[operator]
         frames = sim.render(q, targets=[person], seed=args.seed + k, stamp=t)
         verdict = monitor.step(frames, q, stamp=t)
-        ms = verdict.timings.get("total", math.nan)
-        cycle_ms.append(ms)
-        distances.append(verdict.min_distance)
-        scales.append(verdict.speed_scale)
-        d = "inf" if not math.isfinite(verdict.min_distance) else f"{verdict.min_distance:.3f}"
+        record = record_of(verdict, true_distance=true_distance(q, person))
+        records.append(record)
+        ms = record["cycle_ms"] if record["cycle_ms"] is not None else math.nan
+        d = "inf" if record["min_distance"] is None else f"{record['min_distance']:.3f}"
+        true = "-" if record["true_distance"] is None else f"{record['true_distance']:.3f}"
         faults = "; ".join(verdict.faults) if verdict.faults else "-"
-        print(f"{t:6.2f} {d:>12} {str(verdict.closest_link):>13} {verdict.speed_scale:6.2f} {ms:10.0f}  {faults}", flush=True)
+        print(f"{t:6.2f} {d:>12} {true:>8} {str(verdict.closest_link):>13} {verdict.speed_scale:6.2f} {ms:10.0f}  {faults}", flush=True)
         if recorder is not None:
             recorder.add_cycle(t, q, [person], verdict)
-    finite = [d for d in distances if math.isfinite(d)]
-    print(
-        f"summary: min distance {min(finite) if finite else math.inf:.3f} m, "
-        f"speed scale min {min(scales):.2f} / mean {float(np.mean(scales)):.2f}, "
-        f"cycle median {float(np.median(cycle_ms)):.0f} ms (max {max(cycle_ms):.0f} ms)"
+    cycle_ms = [r["cycle_ms"] for r in records if r["cycle_ms"] is not None]
+    finite = [r["min_distance"] for r in records if r["min_distance"] is not None]
+    scales = [r["speed_scale"] for r in records]
+    above = sum(
+        1
+        for r in records
+        if r["min_distance"] is not None and r["true_distance"] is not None and r["min_distance"] > r["true_distance"] + 1e-6
     )
+    print(
+        f"summary: min distance {min(finite) if finite else math.inf:.3f} m "
+        f"(above the true distance in {above} of {len(records)} cycles), "
+        f"speed scale min {min(scales):.2f} / mean {float(np.mean(scales)):.2f}, "
+        f"cycle median {float(np.median(cycle_ms)) if cycle_ms else math.nan:.0f} ms "
+        f"(max {max(cycle_ms) if cycle_ms else math.nan:.0f} ms)"
+    )
+    if args.records is not None:
+        try:
+            args.records.parent.mkdir(parents=True, exist_ok=True)
+            args.records.write_text(json.dumps(records, indent=1) + "\n", encoding="utf-8")
+        except OSError as exc:
+            raise PolyhullError(f"--records {args.records}: cannot write ({exc})") from exc
+        print(f"wrote {args.records}")
+    if not args.no_plot:
+        path = plot_timeline(records, args.plot, title=f"polyhull demo: {cell.name}")
+        print(f"wrote {path} (timeline plot)")
     if recorder is not None:
         path = recorder.write_html(args.html)
         print(f"wrote {path} (open it in a browser; no server needed)")
+    print(f"demo took {time.perf_counter() - t_start:.0f} s")
     sys.stdout.flush()
     return 0

@@ -1,4 +1,11 @@
-"""``polyhull run CELL --frames FRAMES.npz [--json] [--export DIR]``: one cycle from recorded frames."""
+"""``polyhull run CELL --frames F.npz [F.npz ...] [--json] [--export DIR] [--plot OUT.png]``.
+
+One cycle per frames file, in the order given, through one monitor (a directory stands for
+its ``*.npz`` files in name order: a recording). With one file the verdict is printed in
+full (``--json``: one JSON object, SPEC section 6); with several, one line per cycle
+(``--json``: ``{"cycles": [...]}`` with one timeline record per file) and the last
+cycle's verdict in full in text mode. ``--plot`` writes the timeline plot of the cycles.
+"""
 
 from __future__ import annotations
 
@@ -11,24 +18,60 @@ from pathlib import Path
 
 from ..errors import PolyhullError
 
-__all__ = ["register", "export_regions"]
+__all__ = ["register", "export_regions", "frames_files"]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     """Add the ``run`` sub-command."""
     p = subparsers.add_parser(
         "run",
-        help="run one surveillance cycle on recorded frames",
+        help="run surveillance cycles on recorded frames",
         description=(
-            "Run one surveillance cycle of CELL on a frames file (.npz: one float32 (H, W) "
-            "depth array [m] per camera name, plus q and stamp) and print the verdict."
+            "Run one surveillance cycle of CELL per frames file (.npz: one float32 (H, W) "
+            "depth array [m] per camera name, plus q and stamp), in the order given, through "
+            "one monitor, and print the verdict (several files: a line per cycle, then the "
+            "last verdict). A directory stands for its *.npz files in name order."
         ),
     )
     p.add_argument("cell", type=Path, help="cell file (TOML)")
-    p.add_argument("--frames", type=Path, required=True, help="frames file (.npz)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (SPEC section 6)")
-    p.add_argument("--export", type=Path, metavar="DIR", help="write hull.ply, robot_occlusion.ply, region.ply")
+    p.add_argument(
+        "--frames", type=Path, nargs="+", action="extend", required=True, metavar="F.npz",
+        help="frames files (.npz), or directories of them; one cycle each, in this order",
+    )
+    p.add_argument(
+        "--json", action="store_true",
+        help='print JSON only: one verdict object (SPEC section 6) for one file, '
+        '{"cycles": [timeline records]} for several',
+    )
+    p.add_argument(
+        "--export", type=Path, metavar="DIR",
+        help="write hull.ply, robot_occlusion.ply, region.ply of the last cycle",
+    )
+    p.add_argument(
+        "--plot", type=Path, metavar="OUT.png",
+        help="write the timeline plot (distance, S_p, speed scale, cycle time against time)",
+    )
     p.set_defaults(func=_run)
+
+
+def frames_files(paths: list[Path]) -> list[Path]:
+    """The frames files named by ``--frames``: files as given, directories as their ``*.npz``.
+
+    Raises:
+        PolyhullError: A path does not exist, or a directory holds no ``.npz`` file.
+    """
+    out: list[Path] = []
+    for path in paths:
+        if path.is_dir():
+            found = sorted(p for p in path.iterdir() if p.suffix == ".npz" and p.is_file())
+            if not found:
+                raise PolyhullError(f"--frames {path}: the directory holds no .npz frames file")
+            out.extend(found)
+        elif path.is_file():
+            out.append(path)
+        else:
+            raise PolyhullError(f"--frames {path}: no such frames file or directory")
+    return out
 
 
 def export_regions(verdict: object, directory: Path) -> list[Path]:
@@ -54,24 +97,47 @@ def _run(args: argparse.Namespace) -> int:
     from ..cellfile import load_cell
     from ..frames import load_frames
     from ..monitor import Monitor
+    from ..timeline import plot_timeline, record_of
 
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise PolyhullError(f"--plot {args.plot}: the timeline plot is a PNG; give a path ending in .png")
     cell = load_cell(args.cell)
-    recorded = load_frames(args.frames)
-    missing = [c.name for c in cell.cameras if c.name not in recorded.frames]
+    files = frames_files(args.frames)
+    recordings = [load_frames(f) for f in files]  # every file is checked before the first cycle
     monitor = Monitor(cell)
-    verdict = monitor.step(recorded.frames, recorded.q, stamp=recorded.stamp)
+    records = []
+    verdict = None
+    several = len(files) > 1
+    for path, recorded in zip(files, recordings, strict=True):
+        verdict = monitor.step(recorded.frames, recorded.q, stamp=recorded.stamp)
+        records.append({"file": str(path), **record_of(verdict)})
+        if several and not args.json:
+            rec = records[-1]
+            dist = "none" if rec["min_distance"] is None else f"{rec['min_distance']:.3f} m"
+            faults = "; ".join(rec["faults"]) or "-"
+            print(
+                f"{path.name:<24} stamp {rec['stamp']:8.3f} s  distance {dist:>9} ({rec['closest_link']})  "
+                f"speed {rec['speed_scale']:.2f}  cycle {rec['cycle_ms'] or math.nan:7.1f} ms  faults {faults}",
+                flush=True,
+            )
+    assert verdict is not None  # frames_files never returns an empty list
+    recorded = recordings[-1]
+    missing = [c.name for c in cell.cameras if c.name not in recorded.frames]
+    paths: list[Path] = []
     if args.export is not None:
         try:
             paths = export_regions(verdict, args.export)
         except OSError as exc:
             raise PolyhullError(f"--export {args.export}: cannot write ({exc})") from exc
     if args.json:
-        print(json.dumps(verdict.to_json(), indent=2))
+        print(json.dumps({"cycles": records} if several else verdict.to_json(), indent=2))
     else:
         vols = verdict.volumes()
         d = verdict.min_distance
+        if several:
+            print(f"last cycle ({files[-1]}):")
         print(f"cell            {cell.name} ({args.cell})")
-        print(f"frames          {args.frames} ({len(recorded.frames)} cameras, stamp {recorded.stamp:.3f} s)")
+        print(f"frames          {files[-1]} ({len(recorded.frames)} cameras, stamp {recorded.stamp:.3f} s)")
         if missing:
             print(f"missing frames  {', '.join(missing)}")
         print(f"hull C          {vols['volume_hull']:.3f} m^3")
@@ -91,7 +157,11 @@ def _run(args: argparse.Namespace) -> int:
         for w in verdict.warnings:
             print(f"warning         {w}")
         print("timings [ms]    " + ", ".join(f"{k} {v:.1f}" for k, v in verdict.timings.items()))
+    # with --json, stdout holds the JSON document only
+    info = sys.stderr if args.json else sys.stdout
     if args.export is not None:
-        # with --json, stdout holds the JSON object only
-        print(f"wrote {', '.join(str(p) for p in paths)}", file=sys.stderr if args.json else sys.stdout, flush=True)
+        print(f"wrote {', '.join(str(p) for p in paths)}", file=info, flush=True)
+    if args.plot is not None:
+        out = plot_timeline(records, args.plot, title=f"polyhull run: {cell.name}, {len(files)} cycles")
+        print(f"wrote {out} (timeline plot)", file=info, flush=True)
     return 0

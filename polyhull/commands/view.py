@@ -4,9 +4,11 @@ With ``--html`` the scene is written as a standalone HTML file (it opens from di
 server) and the command exits. Without it, a meshcat server starts, its URL is printed, and
 the command serves until Ctrl-C, then stops the server. It never waits for a browser.
 
-With ``--frames`` the recorded frames are drawn as point clouds, and the monitor runs one
-cycle on them: the cameras' regions C(i), the hull C, the robot occlusion M, the region R,
-the removed components and the closest-distance segment are drawn too.
+With ``--frames`` the recorded frames are drawn as point clouds (hidden at first), and the
+monitor runs one cycle on them: the region R (its dynamic part saturated, its static part
+faint near the robot), the closest-distance segment and its label are shown; the cameras'
+regions C(i), the hull C, the robot occlusion M and the removed components are drawn
+hidden, each switched on in meshcat's controls.
 
 The viewer is an optional extra (``polyhull_viewer``); it is imported only when this
 command runs.
@@ -34,8 +36,10 @@ def register(subparsers: Any) -> None:
         help="inspect a cell, its frames and the monitor's regions in meshcat",
         description=(
             "Draw a cell (zone, obstacles, robot, camera frustums) in meshcat. With --frames, "
-            "also draw the frames as point clouds and run the monitor once to draw the "
-            "regions C(i), C, M, R and the closest distance. With --html, write a standalone "
+            "also run the monitor once: the region R (what moved in a saturated red, the "
+            "static blind space as a faint tint near the robot) and the closest distance are "
+            "shown; the point clouds, C(i), C, M and the removed parts are drawn hidden "
+            "(toggle them in meshcat's 'Open Controls'). With --html, write a standalone "
             "HTML file and exit; otherwise serve the scene until Ctrl-C."
         ),
     )
@@ -55,9 +59,9 @@ def register(subparsers: Any) -> None:
     p.add_argument(
         "--max-points",
         type=int,
-        default=20_000,
+        default=5_000,
         metavar="N",
-        help="most points drawn per camera frame (default: %(default)s)",
+        help="most points drawn per camera frame, inside the zone (default: %(default)s)",
     )
     # For tests: serve this many seconds, then stop as if Ctrl-C had been pressed.
     p.add_argument("--serve-seconds", type=float, default=None, help=argparse.SUPPRESS)
@@ -83,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
     pv = _import_viewer()
     cell = load_cell(args.cell)
 
-    frames = verdict = camera_regions = None
+    frames = verdict = camera_regions = static_region = None
     q = None
     if args.frames is not None:
         recorded = load_frames(args.frames)
@@ -100,6 +104,7 @@ def _run(args: argparse.Namespace) -> int:
             monitor = Monitor(cell)
             verdict = monitor.step(frames, q, stamp=recorded.stamp)
             camera_regions = monitor.camera_regions(frames)
+            static_region = monitor.static.region
             _report(verdict)
 
     def draw(vis: Any) -> None:
@@ -110,6 +115,7 @@ def _run(args: argparse.Namespace) -> int:
             frames=frames,
             verdict=verdict,
             camera_regions=camera_regions,
+            static_region=static_region,
             max_points=args.max_points,
         )
 

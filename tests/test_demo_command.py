@@ -1,0 +1,42 @@
+"""``polyhull demo``: the per-cycle lines, the timeline plot and its records.
+
+The animated page is tested on :class:`polyhull_viewer.DemoRecorder` (tests/test_viewer.py)
+and in the browser (tests/test_viewer_browser.py): building a verdict's dynamic region as
+one manifold takes the engine tens of seconds per cycle on the small cell, too slow here.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from polyhull import cli
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL_CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
+
+
+def test_demo_writes_the_plot_and_the_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    png, records = tmp_path / "demo.png", tmp_path / "records.json"
+    argv = ["demo", "--cell", str(SMALL_CELL), "--cycles", "3", "--dt", "0.2", "--no-html"]
+    assert cli.main([*argv, "--plot", str(png), "--records", str(records)]) == 0
+    out = capsys.readouterr().out
+    assert f"wrote {png} (timeline plot)" in out and ".html" not in out
+    rows = json.loads(records.read_text())
+    assert [r["stamp"] for r in rows] == pytest.approx([0.0, 0.2, 0.4])
+    # The simulated person's true distance is known every cycle, and the reported distance
+    # never exceeds it (the region contains the person).
+    assert all(r["true_distance"] is not None and r["true_distance"] > 0 for r in rows)
+    assert all(r["min_distance"] is None or r["min_distance"] <= r["true_distance"] + 1e-6 for r in rows)
+    with Image.open(png) as image:
+        assert image.format == "PNG"
+
+
+def test_demo_rejects_a_plot_that_is_not_png_before_running(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert cli.main(["demo", "--cycles", "2", "--plot", str(tmp_path / "t.jpg"), "--no-html"]) == 2
+    captured = capsys.readouterr()
+    assert "--plot" in captured.err and captured.err.count("\n") == 1
+    assert "cycles" not in captured.out  # nothing ran
