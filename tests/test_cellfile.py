@@ -140,10 +140,10 @@ def test_paper_cell() -> None:
         assert (cam.intrinsics.width, cam.intrinsics.height) == (640, 480)
         assert cam.intrinsics == Intrinsics(640, 480, 525.0, 525.0, 319.5, 239.5)
         assert (cam.near, cam.far, cam.noise, cam.tolerance_sigmas) == (0.3, 10.0, 0.0015, 3.0)
-        # Ceiling corner, looking down at the middle of the cell.
+        # Ceiling corner, looking down at a point 1.6 m over the robot's base.
         assert cam.center[2] == pytest.approx(3.3)
         optical_axis = cam.T_world_camera[:3, 2]
-        assert optical_axis[2] < -0.4
+        assert optical_axis[2] == pytest.approx(-1.7 / np.hypot(1.7, 2.8 * np.sqrt(2.0)))
         _, z = cam.project(np.array([[3.0, 3.0, 0.6]]))
         assert z[0] > 0
     # two tables, a rack and the four walls just outside the zone
