@@ -138,6 +138,9 @@ def timeline_figure(records: Sequence[Mapping[str, Any]], *, title: str | None =
     stamps = _column(records, "stamp", required=True)
     if any(math.isnan(t) for t in stamps):
         raise PolyhullError("timeline records: every 'stamp' must be a finite time [s]")
+    # time since the first cycle: recorded stamps are often seconds since 1970
+    t_first = float(stamps[0])
+    stamps = [t - t_first for t in stamps]
     distance = _column(records, "min_distance", required=True)
     separation = _column(records, "separation_distance", required=False)
     true = _column(records, "true_distance", required=False)
@@ -177,7 +180,7 @@ def timeline_figure(records: Sequence[Mapping[str, Any]], *, title: str | None =
     if finite_ms:
         ax_c.set_yscale("log")
     ax_c.set_ylabel("cycle [ms]")
-    ax_c.set_xlabel("time [s]")
+    ax_c.set_xlabel("time since the first cycle [s]" if t_first != 0.0 else "time [s]")
     for ax in (ax_d, ax_s, ax_c):
         ax.grid(True, alpha=0.3)
     if title:

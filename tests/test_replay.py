@@ -60,7 +60,10 @@ def test_replay_of_the_bag_equals_the_in_memory_run(small_cell: Cell, fresh_moni
 
 def test_replay_command_writes_json_lines(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "cycles.jsonl"
-    code = main(["replay", str(SMALL_CELL), str(PNG), "--fast", "--seconds", "0.4", "--json-lines", str(out), "--json"])
+    plot = tmp_path / "timeline.png"
+    code = main(
+        ["replay", str(SMALL_CELL), str(PNG), "--fast", "--seconds", "0.4", "--json-lines", str(out), "--plot", str(plot), "--json"]
+    )
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
     records = [json.loads(line) for line in out.read_text().splitlines()]
@@ -70,6 +73,15 @@ def test_replay_command_writes_json_lines(tmp_path: Path, capsys: pytest.Capture
         assert r["cameras"] == ["ne", "sw"] and r["missing"] == []
         assert 0.0 <= r["speed_scale"] <= 1.0 and r["cycle_ms"] > 0 and r["q"] is not None
         assert set(r) >= {"min_distance", "separation_distance", "faults", "timings_ms", "counts"}
+    # the timeline plot of the same cycles
+    assert summary["written"] == [str(plot)]
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_replay_plot_must_be_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["replay", str(SMALL_CELL), str(PNG), "--plot", str(tmp_path / "t.svg")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--plot" in err and ".png" in err
 
 
 def test_replay_command_bad_recording_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

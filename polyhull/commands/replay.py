@@ -1,4 +1,5 @@
-"""``polyhull replay CELL RECORDING [--json-lines OUT] [--fast]``: the monitor over a recording."""
+"""``polyhull replay CELL RECORDING [--json-lines OUT] [--fast] [--plot OUT.png] [--html OUT.html]``:
+the monitor over a recording."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from ..errors import PolyhullError
+from ..errors import MissingExtraError, PolyhullError
 
 if TYPE_CHECKING:
     from ..recordings import Cycle
@@ -29,7 +30,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "directory; or a folder of depth images, one sub-folder per camera). The cameras' "
             "frames are matched by time within safety.max_frame_age; the joint state comes from "
             "robot.joint_state_topic or --joints. Runs at recorded pace unless --fast, with a "
-            "progress bar, and writes one JSON object per cycle with --json-lines."
+            "progress bar, and writes one JSON object per cycle with --json-lines, the timeline plot "
+            "(distance, S_p, speed scale, cycle time, faults) with --plot, and the animated meshcat "
+            "scene with --html."
         ),
     )
     p.add_argument("cell", type=Path, help="cell file (TOML)")
@@ -38,6 +41,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p.add_argument("--fast", action="store_true", help="as fast as possible instead of at recorded pace")
     p.add_argument("--joints", type=Path, metavar="CSV", help="joint states from this CSV instead of the recording")
     p.add_argument("--seconds", type=float, metavar="S", help="replay only the first S seconds of the recording")
+    p.add_argument("--plot", type=Path, metavar="OUT.png", help="write the timeline plot (PNG, needs matplotlib)")
+    p.add_argument(
+        "--html",
+        type=Path,
+        metavar="OUT.html",
+        help="write the animated meshcat scene (viewer extra; builds every cycle's region mesh: slow)",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary (everything else on stderr)")
     p.set_defaults(func=_run)
 
@@ -60,6 +70,7 @@ def _run(args: argparse.Namespace) -> int:
     from ..monitor import Monitor
     from ..recordings import open_recording, recording_cycles
     from ..recordings.replay import cycle_record, replay
+    from ..timeline import plot_timeline, record_of
 
     to_stdout = args.json_lines is not None and str(args.json_lines) == "-"
     log = sys.stderr if (args.json or to_stdout) else sys.stdout
@@ -67,7 +78,16 @@ def _run(args: argparse.Namespace) -> int:
         raise PolyhullError("--json and --json-lines - both want stdout; write the lines to a file")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise PolyhullError(f"--seconds must be a time > 0 s, got {args.seconds}")
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise PolyhullError(f"--plot {args.plot}: the timeline plot is a PNG; give a path ending in .png")
     cell = load_cell(args.cell)
+    recorder_class = None
+    if args.html is not None:
+        try:
+            from polyhull_viewer import DemoRecorder
+        except ImportError as exc:
+            raise MissingExtraError("replay --html", "viewer") from exc
+        recorder_class = DemoRecorder
     recording = open_recording(args.recording, cell, joints_csv=args.joints)
     names = tuple(c.name for c in cell.cameras)
     absent = [n for n in names if n not in recording.cameras]
@@ -87,12 +107,15 @@ def _run(args: argparse.Namespace) -> int:
                 raise PolyhullError(f"--json-lines {args.json_lines}: cannot write ({exc})") from None
     print(f"building the monitor of {cell.name} ...", file=sys.stderr, flush=True)
     monitor = Monitor(cell)
+    records: list[dict[str, object]] = []
+    recorder = None if recorder_class is None else recorder_class(cell, static_region=monitor.static.region)
     total = recording.frame_count(recording.cameras[0]) if args.seconds is None else None
     distances, scales, cycle_ms = [], [], []
     n_faulted = 0
     first_fault: str | None = None
     t0 = time.perf_counter()
     n = 0
+    recorder_last = -math.inf
     try:
         with tqdm(total=total, unit="cycle", desc="replay", file=sys.stderr, disable=None) as bar:
             cycles = recording_cycles(recording, cell)
@@ -100,6 +123,13 @@ def _run(args: argparse.Namespace) -> int:
                 cycles = _first_seconds(cycles, args.seconds)
             for cycle, verdict in replay(monitor, cycles, fast=args.fast):
                 record = cycle_record(cycle, verdict, names)
+                if args.plot is not None:
+                    records.append(record_of(verdict))
+                if recorder is not None and len(verdict.q) and (
+                    recorder.cycle_count == 0 or verdict.stamp > recorder_last
+                ):
+                    recorder.add_cycle(verdict.stamp, verdict.q, [], verdict)
+                    recorder_last = verdict.stamp
                 if out is not None:
                     out.write(json.dumps(record) + "\n")
                 n += 1
@@ -129,6 +159,15 @@ def _run(args: argparse.Namespace) -> int:
         "first_fault": first_fault,
         "json_lines": None if args.json_lines is None else str(args.json_lines),
     }
+    written = []
+    if args.plot is not None:
+        written.append(plot_timeline(records, args.plot, title=f"polyhull replay: {args.recording.name}"))
+    if recorder is not None:
+        if recorder.cycle_count < 2:
+            print("warning: --html needs two cycles with a joint state; no scene written", file=sys.stderr)
+        else:
+            written.append(recorder.write_html(args.html, title=f"polyhull replay: {args.recording.name}"))
+    summary["written"] = [str(p) for p in written]
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0
@@ -141,4 +180,6 @@ def _run(args: argparse.Namespace) -> int:
         print(f"faults          {n_faulted} of {n} cycles (first: {first_fault})", file=log)
     if args.json_lines is not None and not to_stdout:
         print(f"wrote {args.json_lines}", file=log)
+    for path in written:
+        print(f"wrote {path}", file=log)
     return 0
