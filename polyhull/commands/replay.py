@@ -10,7 +10,7 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, Any
 
 from ..errors import MissingExtraError, PolyhullError
 
@@ -147,7 +147,7 @@ def _run(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - t0
     if n == 0:
         raise PolyhullError(f"{args.recording}: no cycle to replay (no frames of {recording.cameras[0]})")
-    summary = {
+    summary: dict[str, Any] = {
         "cycles": n,
         "seconds": wall,
         "cycles_per_second": n / wall if wall > 0 else None,
