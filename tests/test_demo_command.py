@@ -40,3 +40,12 @@ def test_demo_rejects_a_plot_that_is_not_png_before_running(tmp_path: Path, caps
     captured = capsys.readouterr()
     assert "--plot" in captured.err and captured.err.count("\n") == 1
     assert "cycles" not in captured.out  # nothing ran
+
+
+def test_behaviour_line_names_the_speed_phases() -> None:
+    from polyhull.commands.demo import behaviour
+
+    scales = [1.0, 0.97, 0.5, 0.0, 0.0, 0.3, 1.0]
+    records = [{"stamp": 0.3 * k, "speed_scale": s} for k, s in enumerate(scales)]
+    assert behaviour(records) == "full speed 0.0-0.3 s, slower at 0.6 s, stop 0.9-1.2 s, slower at 1.5 s, full speed at 1.8 s"
+    assert behaviour([]) == "no cycle"
