@@ -175,7 +175,8 @@ def refine_kept(
     all_ = np.ones(len(kept), dtype=bool)
     sheets, result = region(all_, None)
     rounds = 0
-    if len(kept) == 0 or len(spheres) == 0 or not np.isfinite(float(result.distance)):
+    # nothing to refine, or contact already (the cycle stops whatever the finer pieces say)
+    if len(kept) == 0 or len(spheres) == 0 or not (0.0 < float(result.distance) < np.inf):
         return Refined(kept, kept.select(cut), sheets, result, rounds)
     # Only the pieces within ``reach`` (and a margin) of the first frontier take part in
     # the rounds; the rest keep their sheets and their distance (measured once).
