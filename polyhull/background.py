@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .errors import CellError
+from .frames import open_npz
 from .typed import ArrayF32, ArrayF64
 
 if TYPE_CHECKING:
@@ -199,12 +200,7 @@ def load_background(path: str | Path, cameras: tuple[Camera, ...]) -> TaughtBack
     """
     path = Path(path)
     shapes = {c.name: c.shape for c in cameras}
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise CellError(f"{path}: not a readable .npz taught background ({exc})") from None
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise CellError(f"{path}: expected an .npz of named arrays, got one bare array")
+    data = open_npz(path, CellError, "taught background")
     taught: dict[str, TaughtCamera] = {}
     with data:
         keys = set(data.keys())

@@ -96,18 +96,24 @@ def save_frames(path: str | Path, frames: Mapping[str, DepthFrame], q: ArrayF64,
     return path
 
 
+def open_npz(path: Path, error: type[Exception], what: str) -> np.lib.npyio.NpzFile:
+    """``np.load`` of an .npz of named arrays (no pickles); any other content raises
+    ``error`` with one line naming the file and ``what`` it should be."""
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise error(f"{path}: not a readable .npz {what} ({exc})") from None
+    if not isinstance(data, np.lib.npyio.NpzFile):
+        raise error(f"{path}: not an .npz {what} (one array, not named fields)")
+    return data
+
+
 def load_frames(path: str | Path) -> FramesFile:
     """Read a frames file; raise :class:`FrameError` naming the file and field when invalid."""
     path = Path(path)
     if not path.is_file():
         raise FrameError(f"{path}: no such frames file")
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise FrameError(f"{path}: not a readable .npz frames file ({exc})") from exc
-    if not isinstance(data, np.lib.npyio.NpzFile):
-        raise FrameError(f"{path}: not an .npz frames file (one array, not named fields)")
-    with data:
+    with open_npz(path, FrameError, "frames file") as data:
         keys = list(data.keys())
         arrays: dict[str, np.ndarray] = {}
         for key in keys:
