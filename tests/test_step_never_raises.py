@@ -27,7 +27,7 @@ _Q0 = (0.0, -0.6, 1.2, 0.0, 0.8, 0.0)  # the small cell's robot q [rad]
 _STAMP = 1.0
 
 _SETTINGS = settings(
-    max_examples=120,
+    max_examples=80,
     deadline=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large],
 )
