@@ -125,6 +125,8 @@ def load_frames(path: str | Path) -> FramesFile:
         for key in _RESERVED:
             if key not in keys:
                 raise FrameError(f"{path}: missing field {key!r} (frames files hold q and stamp)")
+        if arrays["q"].dtype.kind not in "iuf":
+            raise FrameError(f"{path}: field 'q' must be real numbers [rad], got dtype {arrays['q'].dtype}")
         try:
             q = np.asarray(arrays["q"], dtype=np.float64).reshape(-1)
         except (TypeError, ValueError) as exc:
@@ -132,7 +134,8 @@ def load_frames(path: str | Path) -> FramesFile:
         if not np.all(np.isfinite(q)):
             raise FrameError(f"{path}: field 'q' must be finite, got {q.tolist()}")
         stamp_arr = np.asarray(arrays["stamp"])
-        if stamp_arr.size != 1 or not np.isfinite(float(stamp_arr.reshape(-1)[0])):
+        # a real number only (a string or complex stamp is not a time)
+        if stamp_arr.size != 1 or stamp_arr.dtype.kind not in "iuf" or not np.isfinite(float(stamp_arr.reshape(-1)[0])):
             raise FrameError(f"{path}: field 'stamp' must be one finite number [s]")
         stamp = float(stamp_arr.reshape(-1)[0])
         frames: dict[str, DepthFrame] = {}

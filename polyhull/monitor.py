@@ -440,11 +440,13 @@ class Monitor:
             try:
                 return self._stop_verdict(stamp, q, faults, warnings, timings, t_start)
             except Exception as exc2:  # noqa: BLE001 - last resort, no formatting of inputs
+                if (last := f"internal: {type(exc2).__name__}") not in self._latched:
+                    self._latched.append(last)
                 return Verdict(
                     stamp=math.nan, q=np.zeros(0), removed=(), min_distance=0.0, closest_points=None,
                     closest_link=None, speed_scale=0.0, allowed_speed=0.0,
                     separation_distance=math.inf,
-                    faults=(*self._latched, f"internal: {type(exc2).__name__}"),
+                    faults=tuple(self._latched),
                     warnings=(), _fallback=self._zone,
                 )
 
@@ -470,10 +472,11 @@ class Monitor:
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         try:
             st = float(stamp)  # type: ignore[arg-type]
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             st = math.nan
         # the verdict echoes q only when it is a real array (never a cast of bad input)
-        qv = np.asarray(q, dtype=np.float64).reshape(-1) if q is not None and _is_real_array(q) else np.zeros(0)
+        # a copy: the verdict keeps no view of the caller's array
+        qv = np.array(q, dtype=np.float64).reshape(-1) if q is not None and _is_real_array(q) else np.zeros(0)
         return Verdict(
             stamp=st if math.isfinite(st) else math.nan,
             q=qv,
@@ -510,7 +513,7 @@ class Monitor:
         if q_stamp is not None:
             try:
                 age = stamp - float(q_stamp)  # type: ignore[arg-type]
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 faults.append(f"joint state: q_stamp must be a time [s], got {q_stamp!r}")
                 return None
             limit = self.cell.safety.joint_state_max_age
@@ -574,7 +577,7 @@ class Monitor:
         if stamp is None:
             stamps = [f.stamp for f in frames.values() if isinstance(f, DepthFrame)]
             stamp = max(stamps) if stamps else math.nan
-        if isinstance(stamp, bool) or not isinstance(stamp, int | float | np.integer | np.floating) or not math.isfinite(float(stamp)):
+        if isinstance(stamp, bool) or not isinstance(stamp, int | float | np.integer | np.floating) or not _finite(stamp):
             faults.append(f"stamp: must be a finite time [s], got {stamp!r}")
             return self._stop_verdict(stamp, q, faults, warnings, timings, t_start)
         t = float(stamp)
@@ -805,7 +808,7 @@ class Monitor:
         )
         return Verdict(
             stamp=t,
-            q=np.asarray(qv, dtype=np.float64),
+            q=np.array(qv, dtype=np.float64),  # a copy: check_q may return the caller's array
             removed=self.static.removed + gaps + result.removed + refine_removed,
             min_distance=dist.distance,
             closest_points=dist.points,
@@ -1065,6 +1068,14 @@ def _mesh_arrays(m: m3.Manifold) -> tuple[ArrayF64, np.ndarray] | None:
         return None
     mesh = m.to_mesh64()
     return np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
+def _finite(x: int | float | np.integer | np.floating) -> bool:
+    """Whether a number is finite as a float (an int too large for a float is not)."""
+    try:
+        return math.isfinite(float(x))
+    except OverflowError:
+        return False
 
 
 def _is_real_array(q: object) -> bool:

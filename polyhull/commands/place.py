@@ -74,6 +74,22 @@ def parse_importance(values: list[str]) -> Any:
     return Importance(regions=tuple(regions)) if regions else None
 
 
+def _check_flags(args: argparse.Namespace) -> None:
+    """Reject flag values the optimiser would refuse later (or silently replace), naming
+    the flag, before anything is loaded."""
+    if args.k_of_n is not None and args.k_of_n < 1:
+        raise PolyhullError(f"--k-of-n must be an integer >= 1, got {args.k_of_n}")
+    if args.eps is not None and not (math.isfinite(args.eps) and args.eps >= 0):
+        raise PolyhullError(f"--eps must be finite and >= 0 (units of the objective), got {args.eps}")
+    for flag, value in (("--w1", args.w1), ("--w2", args.w2)):
+        if not (math.isfinite(value) and value >= 0):
+            raise PolyhullError(f"{flag} must be a finite weight >= 0, got {value}")
+    if not (0 < args.sigma0 <= 1):
+        raise PolyhullError(f"--sigma0 must be in (0, 1] (parameters normalised to [0, 1]), got {args.sigma0}")
+    if args.pixel_step < 1:
+        raise PolyhullError(f"--pixel-step must be an integer >= 1 [px], got {args.pixel_step}")
+
+
 def _argument(parse: Any) -> Any:
     """An argparse ``type`` that reports a :class:`PolyhullError` as a usage error."""
 
@@ -156,6 +172,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     from ..placement.targets import sample_target_scenes
 
+    _check_flags(args)
     cell = load_cell(args.cell)
     if not cell.mounting:
         raise PolyhullError(
