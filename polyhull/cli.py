@@ -16,7 +16,7 @@ from .errors import PolyhullError
 __all__ = ["main", "build_parser"]
 
 # Order is the order of --help.
-COMMANDS = ("demo", "run", "render", "view", "place", "bench", "teach", "replay")
+COMMANDS = ("demo", "run", "render", "view", "place", "bench", "soak", "teach", "replay")
 
 
 def build_parser() -> argparse.ArgumentParser:

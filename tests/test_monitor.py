@@ -177,7 +177,9 @@ def test_exceptions_become_verdicts(fresh_monitor: Monitor, monkeypatch: pytest.
     m = fresh_monitor
 
     def broken(*args: object, **kwargs: object) -> None:
-        raise exc
+        # a fresh instance: raising the parametrized one would store this call's traceback
+        # in it (frames holding the monitor) for as long as the module lives
+        raise type(exc)(*exc.args)
 
     monkeypatch.setattr(monitor_module, "carve", broken)
     v = m.step(_clean(m, 1.0), _q(m), stamp=1.0)
