@@ -34,6 +34,8 @@ from .typed import ArrayF64
 __all__ = [
     "DistanceResult",
     "RobotDistanceModel",
+    "StaticCycle",
+    "StaticDistance",
     "manifold_to_fcl",
     "hexahedra_triangles",
     "points_in_hexahedra",
@@ -208,6 +210,7 @@ class RobotDistanceModel:
         pieces: ArrayF64 | None = None,
         region: m3.Manifold | None = None,
         best: DistanceResult | None = None,
+        cutoff: float = math.inf,
     ) -> DistanceResult:
         """Minimum distance between the region and the robot at the given link poses.
 
@@ -220,6 +223,9 @@ class RobotDistanceModel:
             best: The distance of another part of the region measured already (e.g.
                 the static region's, reused while the dynamic pieces change): the
                 result is the nearer of the two.
+            cutoff: An upper bound [m] of another part's distance not measured yet:
+                pieces that cannot be nearer than it are not measured (the result is
+                then ``best``, and the caller measures that part).
 
         Raises:
             GeometryError: FCL failed.
@@ -256,7 +262,7 @@ class RobotDistanceModel:
                 T = T_world_links[name]
                 spheres[name] = (T[:3, :3] @ c + T[:3, 3], r)
             lower = np.empty((len(names), len(centers)))
-            upper = best.distance
+            upper = min(best.distance, cutoff)
             mids = pieces.mean(axis=1)  # inside each convex piece
             for j, (name, (c, r)) in enumerate(spheres.items()):
                 lower[j] = np.linalg.norm(centers - c, axis=1) - radii - r
@@ -270,17 +276,115 @@ class RobotDistanceModel:
             while b0 < len(order):
                 batch = order[b0 : b0 + size]
                 b0, size = b0 + size, 4 * size
-                batch = batch[low[batch] < best.distance]
+                bound = min(best.distance, cutoff)
+                batch = batch[low[batch] < bound]
                 if len(batch) == 0:
                     break
                 verts, tris = hexahedra_triangles(pieces[batch])
                 obj = fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
                 for j, name in enumerate(names):
-                    if float(lower[j, batch].min()) >= best.distance:
+                    if float(lower[j, batch].min()) >= min(best.distance, cutoff):
                         continue
                     d, pts = self._query(obj, name, T_world_links[name])
                     if d <= 0.0:
                         return DistanceResult(0.0, None, name)
                     if d < best.distance:
                         best = DistanceResult(d, pts, name)
+        return best
+
+
+def _displacement(T0: ArrayF64, T1: ArrayF64, center: ArrayF64, radius: float) -> float:
+    """An upper bound [m] of how far any point of a ball (link frame ``center``,
+    ``radius``) moves from pose ``T0`` to pose ``T1``: the centre's displacement plus the
+    rotation's change (Frobenius norm, >= the spectral norm) times the radius."""
+    dc = (T1[:3, :3] - T0[:3, :3]) @ center + (T1[:3, 3] - T0[:3, 3])
+    return float(np.linalg.norm(dc) + np.linalg.norm(T1[:3, :3] - T0[:3, :3]) * radius)
+
+
+class StaticDistance:
+    """The static region's distance to each robot link, reused across cycles.
+
+    A link that moved by at most ``delta`` since its distance ``d`` was measured is at
+    least ``d - delta`` away from the (unchanged) static region. Each cycle
+    (:meth:`cycle`) gives every link that lower bound, and only links whose bound is below
+    the distance sought are measured with FCL: the result is FCL's exact distance
+    whenever the static region is the nearest part, and otherwise no static query runs.
+    """
+
+    def __init__(
+        self,
+        model: RobotDistanceModel,
+        static: fcl.CollisionObject | None,
+        contains: Callable[[ArrayF64], np.ndarray] | None,
+    ) -> None:
+        self._model = model
+        self._static = static
+        self._contains = contains
+        self._last: dict[str, tuple[ArrayF64, float]] = {}  # pose and distance of each link
+
+    def reset(self) -> None:
+        """Forget the measured distances (the next cycle measures every link it needs)."""
+        self._last.clear()
+
+    def cycle(self, T_world_links: Mapping[str, ArrayF64]) -> StaticCycle:
+        """This cycle's static distance, measured lazily."""
+        return StaticCycle(self, T_world_links)
+
+
+class StaticCycle:
+    """One cycle's static distance (see :class:`StaticDistance`)."""
+
+    def __init__(self, owner: StaticDistance, T_world_links: Mapping[str, ArrayF64]) -> None:
+        self._owner = owner
+        self._T = T_world_links
+        model = owner._model
+        self._names = model.link_names
+        self._done: dict[str, tuple[float, ArrayF64 | None]] = {}
+        self.contact: DistanceResult | None = None
+        self.queries = 0
+        lower, upper = [], []
+        for name in self._names:
+            last = owner._last.get(name)
+            if last is None or owner._static is None:
+                lower.append(0.0 if owner._static is not None else math.inf)
+                upper.append(math.inf)
+                continue
+            c, r = model._spheres[name]
+            delta = _displacement(last[0], T_world_links[name], c, r)
+            lower.append(max(last[1] - delta, 0.0))
+            upper.append(last[1] + delta)
+        self._lower = np.array(lower, dtype=np.float64)
+        self.upper = float(min(upper, default=math.inf))
+        """An upper bound [m] of the static distance (inf when not known)."""
+        if owner._static is not None and owner._contains is not None and self._names:
+            inner = model.inner_points(T_world_links)
+            hit = owner._contains(np.array([inner[n] for n in self._names]).reshape(-1, 3))
+            if hit.any():
+                self.contact = DistanceResult(0.0, None, self._names[int(np.argmax(hit))])
+
+    def nearer(self, best: DistanceResult | None = None) -> DistanceResult:
+        """The nearer of ``best`` and the static region (links measured only while their
+        lower bound is below the best distance so far)."""
+        if best is None:
+            best = DistanceResult(math.inf, None, None)
+        if self.contact is not None:
+            return self.contact
+        owner = self._owner
+        if owner._static is None or best.distance <= 0.0:
+            return best
+        for j in np.argsort(self._lower, kind="stable"):
+            name = self._names[int(j)]
+            if name in self._done:
+                d, pts = self._done[name]
+            else:
+                if self._lower[j] >= best.distance:
+                    break
+                d, pts = owner._model._query(owner._static, name, self._T[name])
+                self.queries += 1
+                self._done[name] = (d, pts)
+                owner._last[name] = (np.array(self._T[name], dtype=np.float64), d)
+            if d <= 0.0:
+                return DistanceResult(0.0, None, name)
+            if d < best.distance:
+                best = DistanceResult(d, pts, name)
         return best

@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from .cell import Cell
-from .distance import DistanceResult, RobotDistanceModel, winding_numbers
+from .distance import DistanceResult, RobotDistanceModel, StaticDistance, winding_numbers
 from .engine.boxes import any_overlap
 from .engine.dynamic_rules import (
     DynamicContext,
@@ -337,7 +337,11 @@ class Monitor:
             self._padded: PaddedPieces | None = PaddedPieces.build(robot.link_convex_pieces(), self._padding)
             self._shell_planes = _shell_planes(self._padded, cell.plausibility.shell_thickness)
             self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
+            self._static_distance: StaticDistance | None = StaticDistance(
+                self._distance_model, self.static.bvh, self._static_contains
+            )
         else:
+            self._static_distance = None
             self._distance_model = None
             self._padded = None
             self._shell_planes = []
@@ -355,6 +359,8 @@ class Monitor:
         self._seed_hi: ArrayF64 | None = None
         self._prev_stamp: float | None = None
         self._prev_distance = math.inf  # where the last cycle's frontier was
+        if self._static_distance is not None:
+            self._static_distance.reset()
         self.last_images: CycleImages | None = None
 
     @property
@@ -730,18 +736,17 @@ class Monitor:
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
             return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset)[0]
 
-        static_result: list[DistanceResult] = []
+        # the static region's distance: links measured only when their bound from the
+        # last measurement (less their motion since) is below what the pieces give
+        static_now = None if self._static_distance is None else self._static_distance.cycle(T_links)
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
-            if self._distance_model is None:
+            if self._distance_model is None or static_now is None:
                 return DistanceResult(math.inf, None, None)
-            if not static_result:  # the static region's distance, once per cycle
-                static_result.append(
-                    self._distance_model.distance(T_links, static=self.static.bvh, static_contains=self._static_contains)
-                )
-            if best is None or static_result[0].distance < best.distance:
-                best = static_result[0]
-            return self._distance_model.distance(T_links, pieces=vertices, best=best)
+            if static_now.contact is not None:
+                return static_now.contact
+            res = self._distance_model.distance(T_links, pieces=vertices, best=best, cutoff=static_now.upper)
+            return static_now.nearer(res)
 
         rules = RegionRules(
             in_shells=lambda v: in_shells(v, ctx),

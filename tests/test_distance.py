@@ -152,3 +152,48 @@ def test_golden_engine_values() -> None:
             assert g["min_distance"] is None
         else:
             assert abs(g["min_distance"] - w["min_distance"]) <= 0.06, (w["file"], g["min_distance"], w["min_distance"])
+
+
+def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceModel) -> None:
+    """The static distance reused across cycles (links measured only while their bound from
+    the last measurement is below the best so far) equals FCL's full static distance at
+    every pose of a motion, and measures fewer links than all of them per cycle."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.distance import StaticDistance, manifold_to_fcl
+
+    region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
+    obj = manifold_to_fcl(region)
+    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+
+    @settings(max_examples=15, deadline=None)
+    @given(st.integers(0, 2**31 - 1), st.floats(0.005, 0.3))
+    def check(seed: int, step: float) -> None:
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(lo, hi)
+        cache = StaticDistance(model, obj, None)
+        for _ in range(12):
+            q = np.clip(q + rng.uniform(-step, step, size=q.shape), lo, hi)
+            T = robot.link_transforms(q)
+            full = model.distance(T, static=obj)
+            cycle = cache.cycle(T)
+            got = cycle.nearer()
+            assert got.distance == pytest.approx(full.distance, abs=1e-9)
+            assert got.link == full.link or got.distance == pytest.approx(full.distance, abs=1e-9)
+            # a nearer other part: the static links are measured only if they can beat it
+            near = cache.cycle(T).nearer(type(full)(0.5 * full.distance, None, "other"))
+            assert near.distance == pytest.approx(0.5 * full.distance)
+
+    check()
+    # a slow motion: after the first cycle, only the links near the minimum are measured
+    cache = StaticDistance(model, obj, None)
+    q = 0.5 * (lo + hi)
+    counts = []
+    for k in range(20):
+        cycle = cache.cycle(robot.link_transforms(q + 0.002 * k))
+        cycle.nearer()
+        counts.append(cycle.queries)
+    assert counts[0] == len(model.link_names)
+    assert sum(counts[1:]) <= 19 * 2, counts

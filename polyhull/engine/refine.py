@@ -180,8 +180,14 @@ def refine_kept(
         return Refined(kept, kept.select(cut), sheets, result, rounds)
     # Only the pieces within ``reach`` (and a margin) of the first frontier take part in
     # the rounds; the rest keep their sheets and their distance (measured once).
-    movable = distance_lower_bounds(kept.vertices, spheres) < float(result.distance) + reach + BAND
-    far_sheets, far = region(~movable, None)
+    lower = distance_lower_bounds(kept.vertices, spheres)
+    movable = lower < float(result.distance) + reach + BAND
+    # the far part's distance is measured at the end, only if it can be the nearest
+    far_sheets = rules.sheets(kept.vertices[~movable & cross & ((flags & OWN) > 0)])
+    far_lower = min(
+        float(lower[~movable].min(initial=np.inf)),
+        float(distance_lower_bounds(far_sheets, spheres).min(initial=np.inf)),
+    )
     while rounds < ROUNDS:
         front = float(result.distance)
         v = kept.vertices
@@ -224,6 +230,9 @@ def refine_kept(
             if test.any():
                 keepers = ~inside
                 cut[test] = ~any_overlap(lo[test], hi[test], lo[keepers] - margin, hi[keepers] + margin)
-        near_sheets, result = region(movable, far)
+        near_sheets, result = region(movable, None)
         sheets = np.concatenate([far_sheets, near_sheets])
+        if far_lower < float(result.distance):
+            # the far pieces and their sheets can be the nearest: measure them too
+            result = measure(np.concatenate([kept.vertices[~movable & ~cut], far_sheets]), result)
     return Refined(kept.select(~cut), kept.select(cut), sheets, result, rounds)
