@@ -65,7 +65,7 @@ from .engine.pixels import (
     window_range,
 )
 from .engine.refine import FRONT_SLACK, MEMORY, OWN, REACH_EXTRA, SPARED, RegionRules, refine_kept
-from .engine.robot_raster import PaddedPieces, RobotRaster, rasterize_robot
+from .engine.robot_raster import PaddedPieces, RasterBuffers, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
 from .errors import PolyhullError
 from .frames import DepthFrame
@@ -258,7 +258,9 @@ class CycleImages:
     Attributes:
         free: Camera name -> (H, W) engine free depth [m].
         end: Camera name -> (H, W) end of each pixel's segment [m].
-        raster: Camera name -> the padded robot's raster.
+        raster: Camera name -> the padded robot's raster. Its images are the monitor's
+            buffers, reused: valid until the second :meth:`Monitor.step` after this one
+            (copy them to keep them longer).
     """
 
     free: dict[str, np.ndarray]
@@ -325,6 +327,8 @@ class Monitor:
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
+        # the robot's images, written only in its rectangle (double-buffered)
+        self._raster_buffers = {c.name: RasterBuffers(c.shape) for c in cell.cameras}
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
         self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
@@ -611,7 +615,10 @@ class Monitor:
         t0 = time.perf_counter()
         rasters: dict[str, RobotRaster] = {}
         if padded_world:
-            done = self._pool.map(lambda cam: rasterize_robot(cam, padded_world, self._padded), cell.cameras)  # type: ignore[arg-type]
+            done = self._pool.map(
+                lambda cam: rasterize_robot(cam, padded_world, self._padded, self._raster_buffers[cam.name]),  # type: ignore[arg-type]
+                cell.cameras,
+            )
             rasters = {cam.name: r for cam, r in zip(cell.cameras, done, strict=True)}
         timings["robot_raster"] = (time.perf_counter() - t0) * 1e3
 
@@ -938,13 +945,15 @@ class Monitor:
         for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
             raster = rasters.get(cam.name)
             free = free_imgs[i]
-            if raster is None or free is None or not raster.covered.any():
+            if raster is None or free is None or raster.rect is None:
                 mem_free.image(i).fill(0.0)  # no segment
                 mem_end.image(i).fill(0.0)
                 continue
-            rows = np.nonzero(raster.covered.any(axis=1))[0]
-            cols = np.nonzero(raster.covered.any(axis=0))[0]
-            s_min = float(raster.back[raster.covered].min())
+            u0, u1, v0, v1 = raster.rect
+            win = (slice(v0, v1 + 1), slice(u0, u1 + 1))
+            rows = v0 + np.nonzero(raster.covered[win].any(axis=1))[0]
+            cols = u0 + np.nonzero(raster.covered[win].any(axis=0))[0]
+            s_min = float(raster.back[win][raster.covered[win]].min())
             uv, z = cam.project(corners.reshape(-1, 3))
             uv = uv.reshape(-1, 8, 2)
             z = z.reshape(-1, 8)

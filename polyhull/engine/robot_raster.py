@@ -32,7 +32,7 @@ from ..camera import Camera
 from ..occlusion import grow_piece
 from ..typed import ArrayF32, ArrayF64
 
-__all__ = ["PaddedPieces", "RobotRaster", "rasterize_robot"]
+__all__ = ["PaddedPieces", "RasterBuffers", "RobotRaster", "rasterize_robot"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,19 +87,30 @@ class RobotRaster:
         back: (H, W) upper bound of the padded robot's farthest depth over each covered
             pixel [m] (-inf elsewhere): behind it, the pixel's ray has left the robot.
         shadow_start: (H, W) depth where the robot's shadow starts [m] (+inf elsewhere).
+        rect: (u0, u1, v0, v1) inclusive pixel rectangle holding every covered pixel, or
+            None when the robot covers none.
     """
 
     covered: np.ndarray
     front: ArrayF32
     back: ArrayF32
     shadow_start: ArrayF32
+    rect: tuple[int, int, int, int] | None = None
 
 
 @nb.njit(cache=True, nogil=True)
-def _raster(pc, tris, W, H, near, zbuf, zback):  # pragma: no cover - compiled
+def _raster(pc, tris, W, H, near, zbuf, zback, rect):  # pragma: no cover - compiled
     """Rasterise triangles (camera-frame vertices ``pc``) into ``zbuf`` (a lower bound of
-    the nearest depth) and ``zback`` (an upper bound of the farthest depth)."""
+    the nearest depth) and ``zback`` (an upper bound of the farthest depth); grow ``rect``
+    (u0, u1, v0, v1) to hold every pixel written.
+
+    A pixel's square, grown by one pixel, meets a triangle when it meets each edge's
+    inner half-plane; per row that is an interval of u, computed once per row (one pixel
+    wider on each side, where the per-pixel test decides, so rounding never drops a
+    pixel). Over the square, the triangle's plane ``w = A u + B v + C`` ranges over
+    ``w(centre) -/+ r (|A| + |B|)``."""
     grow = 1.0  # dilation [px]
+    r = 0.5 + grow
     for t in range(tris.shape[0]):
         i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
         z0, z1, z2 = pc[i0, 2], pc[i1, 2], pc[i2, 2]
@@ -114,7 +125,6 @@ def _raster(pc, tris, W, H, near, zbuf, zback):  # pragma: no cover - compiled
         w0, w1, w2 = -1.0 / z0, -1.0 / z1, -1.0 / z2
         wmin = min(w0, min(w1, w2))
         wmax = max(w0, max(w1, w2))
-        # Edge functions with inward normals.
         area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
         sgn = 1.0 if area >= 0 else -1.0
         # Plane w = A u + B v + C (degenerate: the nearest vertex everywhere).
@@ -126,6 +136,7 @@ def _raster(pc, tris, W, H, near, zbuf, zback):  # pragma: no cover - compiled
             A = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) / area
             Bc = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) / area
             C = w0 - A * u0 - Bc * v0
+        spread = r * (abs(A) + abs(Bc))
         umin = min(u0, min(u1, u2)) - grow - 0.5
         umax = max(u0, max(u1, u2)) + grow + 0.5
         vmin = min(v0, min(v1, v2)) - grow - 0.5
@@ -136,36 +147,46 @@ def _raster(pc, tris, W, H, near, zbuf, zback):  # pragma: no cover - compiled
         pu1 = min(int(np.floor(umax + 0.5)), W - 1)
         pv0 = max(int(np.floor(vmin + 0.5)), 0)
         pv1 = min(int(np.floor(vmax + 0.5)), H - 1)
-        r = 0.5 + grow
+        # inward edge normals and offsets: val = nx u + ny v + k >= 0 inside (grown)
+        n0x = -(v1 - v0) * sgn
+        n0y = (u1 - u0) * sgn
+        n1x = -(v2 - v1) * sgn
+        n1y = (u2 - u1) * sgn
+        n2x = -(v0 - v2) * sgn
+        n2y = (u0 - u2) * sgn
+        # the edge tests use r + 1e-6 px: a square that touches an edge meets the
+        # triangle whatever the rounding
+        re = r + 1e-6
+        k0 = -n0x * u0 - n0y * v0 + re * (abs(n0x) + abs(n0y))
+        k1 = -n1x * u1 - n1y * v1 + re * (abs(n1x) + abs(n1y))
+        k2 = -n2x * u2 - n2y * v2 + re * (abs(n2x) + abs(n2y))
         for v in range(pv0, pv1 + 1):
-            for u in range(pu0, pu1 + 1):
+            a = float(pu0)
+            b = float(pu1)
+            if planar:
+                # the row's interval from the three half-planes
+                for e in range(3):
+                    if e == 0:
+                        nx, c = n0x, n0y * v + k0
+                    elif e == 1:
+                        nx, c = n1x, n1y * v + k1
+                    else:
+                        nx, c = n2x, n2y * v + k2
+                    if nx > 0.0:
+                        a = max(a, np.floor(-c / nx) - 1.0)
+                    elif nx < 0.0:
+                        b = min(b, np.ceil(-c / nx) + 1.0)
+                    elif c < 0.0:
+                        b = a - 1.0
+                if not a <= b:  # (NaN-safe)
+                    continue
+            for u in range(int(a), int(b) + 1):
                 if planar:
-                    inside = True
-                    for e in range(3):
-                        if e == 0:
-                            ax, ay, bx, by = u0, v0, u1, v1
-                        elif e == 1:
-                            ax, ay, bx, by = u1, v1, u2, v2
-                        else:
-                            ax, ay, bx, by = u2, v2, u0, v0
-                        nx = -(by - ay) * sgn
-                        ny = (bx - ax) * sgn
-                        val = nx * (u - ax) + ny * (v - ay) + r * (abs(nx) + abs(ny))
-                        if val < 0.0:
-                            inside = False
-                            break
-                    if not inside:
+                    if n0x * u + n0y * v + k0 < 0.0 or n1x * u + n1y * v + k1 < 0.0 or n2x * u + n2y * v + k2 < 0.0:
                         continue
-                    wc = min(
-                        min(A * (u - r) + Bc * (v - r), A * (u + r) + Bc * (v - r)),
-                        min(A * (u - r) + Bc * (v + r), A * (u + r) + Bc * (v + r)),
-                    ) + C
-                    wb = max(wc, wmin)
-                    wx = max(
-                        max(A * (u - r) + Bc * (v - r), A * (u + r) + Bc * (v - r)),
-                        max(A * (u - r) + Bc * (v + r), A * (u + r) + Bc * (v + r)),
-                    ) + C
-                    wf = min(wx, wmax)
+                    wc = A * u + Bc * v + C
+                    wb = max(wc - spread, wmin)
+                    wf = min(wc + spread, wmax)
                 else:
                     wb = wmin
                     wf = wmax
@@ -178,54 +199,116 @@ def _raster(pc, tris, W, H, near, zbuf, zback):  # pragma: no cover - compiled
                 zf = -1.0 / wf if wf < 0.0 else np.inf
                 if zf > zback[v, u]:
                     zback[v, u] = zf
+                if u < rect[0]:
+                    rect[0] = u
+                if u > rect[1]:
+                    rect[1] = u
+                if v < rect[2]:
+                    rect[2] = v
+                if v > rect[3]:
+                    rect[3] = v
+
+
+class RasterBuffers:
+    """One camera's images for :func:`rasterize_robot`, reused every cycle.
+
+    The depth buffers are reset after each use, only where they were written. The output
+    images are double-buffered: a cycle writes the set the cycle before last used (reset
+    only in that cycle's rectangle), so the previous cycle's raster stays valid while the
+    current one is built.
+    """
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        H, W = shape
+        self.zbuf = np.full((H, W), np.inf, dtype=np.float64)
+        self.zback = np.full((H, W), -np.inf, dtype=np.float64)
+        self._sets = [_empty_images(H, W) for _ in range(2)]
+        self._rects: list[tuple[int, int, int, int] | None] = [None, None]
+        self._next = 0
+
+    def take(self) -> tuple[tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32], int]:
+        """The image set to write next (reset to "not covered") and its index."""
+        i = self._next
+        self._next = 1 - i
+        old = self._rects[i]
+        if old is not None:
+            u0, u1, v0, v1 = old
+            covered, front, back, start = self._sets[i]
+            covered[v0 : v1 + 1, u0 : u1 + 1] = False
+            front[v0 : v1 + 1, u0 : u1 + 1] = np.inf
+            back[v0 : v1 + 1, u0 : u1 + 1] = -np.inf
+            start[v0 : v1 + 1, u0 : u1 + 1] = np.inf
+            self._rects[i] = None
+        return self._sets[i], i
+
+    def written(self, i: int, rect: tuple[int, int, int, int] | None) -> None:
+        """Record the rectangle set ``i`` was written in."""
+        self._rects[i] = rect
+
+
+def _empty_images(H: int, W: int) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
+    return (
+        np.zeros((H, W), dtype=np.bool_),
+        np.full((H, W), np.inf, dtype=np.float32),
+        np.full((H, W), -np.inf, dtype=np.float32),
+        np.full((H, W), np.inf, dtype=np.float32),
+    )
 
 
 def rasterize_robot(
-    camera: Camera, pieces_world: Sequence[ArrayF64], pieces: PaddedPieces
+    camera: Camera,
+    pieces_world: Sequence[ArrayF64],
+    pieces: PaddedPieces,
+    buffers: RasterBuffers | None = None,
 ) -> RobotRaster:
-    """The padded robot at the given world-frame hull vertices, in ``camera``'s image."""
+    """The padded robot at the given world-frame hull vertices, in ``camera``'s image.
+
+    With ``buffers`` (one camera's, reused every cycle) only the robot's rectangle of the
+    images is written; the raster returned lives in them until the cycle after next."""
     H, W = camera.shape
     k = camera.intrinsics
-    zbuf = np.full((H, W), np.inf, dtype=np.float64)
-    zback = np.full((H, W), -np.inf, dtype=np.float64)
+    if buffers is None:
+        buffers = RasterBuffers((H, W))
+    rect = np.array([W, -1, H, -1], dtype=np.int64)
     for verts, tris in zip(pieces_world, pieces.triangles, strict=True):
         pc = camera.world_to_camera(verts)
         # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
         pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
-        _raster(pix, tris, W, H, float(camera.near), zbuf, zback)
-    covered = np.zeros((H, W), dtype=np.bool_)
-    front = np.empty((H, W), dtype=np.float32)
-    back = np.empty((H, W), dtype=np.float32)
-    start = np.empty((H, W), dtype=np.float32)
-    _finish(
-        zbuf, zback, float(camera.near), float(camera.tolerance_sigmas * camera.noise),
-        float(camera.tolerance_min), float(pieces.padding), covered, front, back, start,
-    )
-    return RobotRaster(covered, front, back, start)
+        _raster(pix, tris, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
+    (covered, front, back, start), i = buffers.take()
+    box: tuple[int, int, int, int] | None = None
+    if rect[1] >= rect[0]:
+        box = (int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]))
+        _finish(
+            buffers.zbuf, buffers.zback, box[0], box[1], box[2], box[3], float(camera.near),
+            float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
+            float(pieces.padding), covered, front, back, start,
+        )
+    buffers.written(i, box)
+    return RobotRaster(covered, front, back, start, box)
 
 
 @nb.njit(cache=True, nogil=True)
-def _finish(zbuf, zback, near, a, tmin, padding, covered, front, back, start):  # pragma: no cover - compiled
-    """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``."""
-    H, W = zbuf.shape
+def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front, back, start):  # pragma: no cover - compiled
+    """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``,
+    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there."""
     ninf = np.float32(-np.inf)
     pinf = np.float32(np.inf)
-    for v in range(H):
-        for u in range(W):
+    for v in range(v0, v1 + 1):
+        for u in range(u0, u1 + 1):
             z = zbuf[v, u]
             if z == np.inf:
-                covered[v, u] = False
-                front[v, u] = pinf
-                back[v, u] = ninf
-                start[v, u] = pinf
                 continue
+            zb = zback[v, u]
+            zbuf[v, u] = np.inf
+            zback[v, u] = -np.inf
             covered[v, u] = True
             f = np.float32(z)
             if f > z:
                 f = np.nextafter(f, ninf)
             front[v, u] = f
-            b = np.float32(zback[v, u])
-            if b < zback[v, u]:
+            b = np.float32(zb)
+            if b < zb:
                 b = np.nextafter(b, pinf)
             back[v, u] = b
             tau = max(a * z * z, tmin)
