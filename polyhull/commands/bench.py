@@ -824,6 +824,12 @@ def _run(args: argparse.Namespace) -> int:
     print(f"person: {p['cycles']} cycles, true - reported distance median {_fmt(g['median'])} m, "
           f"max {_fmt(g['max'])} m; reported above true in {p['cycles_reported_above_true']} cycles; "
           f"speed scale median {_fmt(p['speed_scale']['median'], '.2f')}, min {_fmt(p['speed_scale']['min'], '.2f')}")
+    x, e = p["exact_hull_gap_m"], p["engine_minus_exact_m"]
+    print(f"exact hull around the person ({p['exact_hull_grid_m'] * 100:.1f} cm grid, {p['exact_hull_cycles']} cycles, "
+          f"{p['exact_hull_seconds']:.1f} s): true distance - its distance median {_fmt(x['median'])} m, max "
+          f"{_fmt(x['max'])} m (the least gap a conservative region from these cameras can have; an estimate)")
+    print(f"engine against that exact hull: its distance - reported median {_fmt(e['median'])} m, "
+          f"max {_fmt(e['max'])} m (what the engine loses to the exact hull)")
     if p["faults"]:
         print(f"  faults: {'; '.join(p['faults'])}")
     t = result["tightness"]
