@@ -52,6 +52,13 @@ def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ig
     assert isinstance(person["cycles_reported_above_true"], int) and person["cycles_reported_above_true"] >= 0
     assert 0.0 <= person["speed_scale"]["min"] <= person["speed_scale"]["median"] <= 1.0
     assert isinstance(person["faults"], list)
+    # the exact hull's own gap: a conservative region holds the person, so its distance is at
+    # most the person's (up to the grid) and at least 0
+    exact_gap, loss = person["exact_hull_gap_m"], person["engine_minus_exact_m"]
+    assert person["exact_hull_grid_m"] == 0.025 and 1 <= person["exact_hull_cycles"] <= 3
+    assert 0 <= person["exact_hull_cycles_clipped"] <= 3 and person["exact_hull_seconds"] > 0
+    assert -0.05 <= exact_gap["median"] <= exact_gap["max"] < 6.0
+    assert math.isfinite(loss["median"]) and loss["max"] >= loss["median"]
     empty = bench_json["empty_cell"]
     assert empty["cycles"] == 2
     assert 0 <= empty["kept_pieces"]["min"] <= empty["kept_pieces"]["max"]
@@ -68,6 +75,11 @@ def test_bench_json_tightness(bench_json: dict) -> None:  # type: ignore[type-ar
     assert 0 < tight["volume_engine_r2_m3"] < tight["volume_zone_m3"]
     assert math.isfinite(tight["excess_percent"])
     assert tight["volume_exact_hull_outside_robot_shadow_m3"] <= tight["volume_exact_hull_m3"]
+    # the exact hull with the static band contains the exact hull (same samples)
+    assert tight["volume_exact_hull_m3"] <= tight["volume_exact_banded_m3"] < tight["volume_zone_m3"]
+    banded_excess = 100.0 * (tight["volume_engine_r2_m3"] / tight["volume_exact_banded_m3"] - 1.0)
+    assert tight["excess_over_banded_percent"] == pytest.approx(banded_excess)
+    assert tight["excess_over_banded_percent"] <= tight["excess_percent"]
     for key in ("misses", "misses_unexcused"):
         assert isinstance(tight[key], int) and tight[key] >= 0
     assert tight["misses"] <= tight["misses_unexcused"]
@@ -79,6 +91,7 @@ def test_bench_text_output(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "stage" in out and "median [ms]" in out and "cycle p99" in out
     assert "person:" in out
+    assert "exact hull around the person" in out and "engine against that exact hull" in out
     assert "tightness" not in out and "empty cell" not in out  # both skipped
 
 
