@@ -626,9 +626,11 @@ class Monitor:
         t0 = time.perf_counter()
         free_stack = ImageStack(self._stack, fill=None)
         end_stack = ImageStack(self._stack, fill=None)
+        pyramids = PyramidStack.allocate(free_stack)
         results = list(
             self._pool.map(
-                lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack), range(len(cell.cameras))
+                lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack, pyramids),
+                range(len(cell.cameras)),
             )
         )
         free_imgs: list[np.ndarray | None] = [free_stack.image(i) for i in range(len(cell.cameras))]
@@ -666,7 +668,7 @@ class Monitor:
         # A camera without a usable frame frees nothing: its whole image becomes pieces. That
         # cycle stops the robot anyway (the fault latches), so its pieces are not split.
         params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
-        pyramid_stack = PyramidStack.build(free_stack, active)
+        pyramid_stack = pyramids.only(active)
 
         # The distance is decided near the frontier (about last cycle's distance): pieces
         # there, and pieces crossing the floor sheet's top within reach of it, are split
@@ -853,9 +855,10 @@ class Monitor:
         rasters: Mapping[str, RobotRaster],
         free_stack: ImageStack,
         end_stack: ImageStack,
+        pyramids: PyramidStack,
     ) -> _CameraPixels:
-        """One camera's pixel classes, small gaps and initial tiles (thread-safe: it writes
-        only camera ``i``'s images)."""
+        """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
+        (thread-safe: it writes only camera ``i``'s images)."""
         cell = self.cell
         cam, s = cell.cameras[i], self.static.cameras[i]
         depth = usable.get(cam.name)
@@ -884,6 +887,8 @@ class Monitor:
                     [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[gap], cls.end[gap]]
                 )
                 cls.free[gap] = cls.end[gap]
+        if depth is not None:
+            pyramids.build_camera(i, cls.free)
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,

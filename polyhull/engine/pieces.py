@@ -405,32 +405,42 @@ class PyramidStack(NamedTuple):
     levels: np.ndarray
 
     @classmethod
-    def build(cls, free: ImageStack, active: np.ndarray) -> PyramidStack:
-        """The pyramids of the active cameras' free depth images, written in place."""
-        n = len(active)
+    def allocate(cls, free: ImageStack) -> PyramidStack:
+        """Room for every camera's pyramids (written by :meth:`build_camera`)."""
+        n = len(free.offsets)
         layouts = [pyramid_layout(*free.shape(i)) for i in range(n)]
-        levels = np.array([len(o) if active[i] else 0 for i, (o, _) in enumerate(layouts)], dtype=np.int64)
-        L = max(int(levels.max(initial=0)), 1)
+        L = max(len(o) for o, _ in layouts)
         offsets = np.zeros((n, L), dtype=np.int64)
         shapes = np.ones((n, L, 2), dtype=np.int64)
+        levels = np.zeros(n, dtype=np.int64)
         base = 0
-        sizes = []
         for i, (o, shp) in enumerate(layouts):
-            if not active[i]:
-                sizes.append(0)
-                continue
             offsets[i, : len(o)] = o + base
             shapes[i, : len(o)] = shp
-            size = int((shp[:, 0] * shp[:, 1]).sum())
-            sizes.append(size)
-            base += size
-        mins = np.empty(max(base, 1), dtype=np.float32)
-        maxs = np.empty(max(base, 1), dtype=np.float32)
-        for i, (o, shp) in enumerate(layouts):
-            if active[i]:
-                start = int(offsets[i, 0])
-                build_pyramid(free.image(i), mins[start : start + sizes[i]], maxs[start : start + sizes[i]], o, shp)
-        return cls(mins, maxs, offsets, shapes, levels)
+            levels[i] = len(o)
+            base += int((shp[:, 0] * shp[:, 1]).sum())
+        return cls(np.empty(base, dtype=np.float32), np.empty(base, dtype=np.float32), offsets, shapes, levels)
+
+    def build_camera(self, i: int, free: np.ndarray) -> None:
+        """Write camera ``i``'s pyramids of its free depth image (thread-safe per camera)."""
+        L = int(self.levels[i])
+        o = self.offsets[i, :L] - self.offsets[i, 0]
+        shp = self.shapes[i, :L]
+        start = int(self.offsets[i, 0])
+        size = int((shp[:, 0] * shp[:, 1]).sum())
+        build_pyramid(free, self.mins[start : start + size], self.maxs[start : start + size], o, shp)
+
+    def only(self, active: np.ndarray) -> PyramidStack:
+        """The same pyramids, with the cameras not ``active`` left out (no levels)."""
+        return self._replace(levels=np.where(np.asarray(active, dtype=bool), self.levels, 0))
+
+    @classmethod
+    def build(cls, free: ImageStack, active: np.ndarray) -> PyramidStack:
+        """The pyramids of the active cameras' free depth images."""
+        out = cls.allocate(free)
+        for i in np.nonzero(active)[0]:
+            out.build_camera(int(i), free.image(int(i)))
+        return out.only(active)
 
 
 class ImageStack:
