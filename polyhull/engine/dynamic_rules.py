@@ -48,8 +48,10 @@ does not bring a sheet box with it.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -244,33 +246,131 @@ def _shell_kernel(points, boxes, t, spheres, planes, offsets, out):  # pragma: n
         out[i] = hit
 
 
-def _near_sheet(lo: ArrayF64, hi: ArrayF64, sheet: Sheet, pad: float) -> np.ndarray:
-    """Indices of the boxes [lo, hi] (N, 3) that meet the sheet's slab grown by ``pad``."""
-    a, b = sheet.world_box(pad)
-    return np.nonzero(np.all((hi >= a) & (lo <= b), axis=1))[0]
+class _SheetArrays(NamedTuple):
+    """The sheets as arrays, for the compiled pair search."""
+
+    M: ArrayF64  # (S, 3, 4) world -> local
+    wlo: ArrayF64  # (S, 3) the slabs' world bounds
+    whi: ArrayF64
+    face: ArrayF64  # (S, 4) x0, y0, x1, y1 of the face in the local frame
+    height: ArrayF64  # (S,)
 
 
-def _local_bounds(vertices: ArrayF64, sheet: Sheet) -> tuple[ArrayF64, ArrayF64]:
-    M = sheet.to_local()
-    local = vertices @ M[:, :3].T + M[:, 3]
-    return local.min(axis=1), local.max(axis=1)
+@functools.cache
+def _sheet_arrays(sheets: tuple[Sheet, ...]) -> _SheetArrays:
+    """The sheets' frames and bounds as arrays (once per set of sheets)."""
+    S = len(sheets)
+    M = np.zeros((S, 3, 4))
+    wlo = np.zeros((S, 3))
+    whi = np.zeros((S, 3))
+    face = np.zeros((S, 4))
+    for k, sh in enumerate(sheets):
+        M[k] = sh.to_local()
+        wlo[k], whi[k] = sh.world_box(0.0)
+        (x0, y0), (x1, y1) = sh.local_box()
+        face[k] = (x0, y0, x1, y1)
+    height = np.array([sh.height for sh in sheets], dtype=np.float64)
+    for a in (M, wlo, whi, face, height):
+        a.setflags(write=False)
+    return _SheetArrays(M, wlo, whi, face, height)
+
+
+@nb.njit(cache=True, nogil=True)
+def _pairs_kernel(vertices, M, wlo, whi, pad):  # pragma: no cover - compiled
+    """(P, 2) pairs (piece, sheet) whose bounding box meets the sheet's slab grown by
+    ``pad``, and (P, 6) the piece's bounds in the sheet's local frame (lo, hi)."""
+    n = vertices.shape[0]
+    S = M.shape[0]
+    cap = 256
+    idx = np.empty((cap, 2), dtype=np.int64)
+    bnd = np.empty((cap, 6))
+    k = 0
+    for i in range(n):
+        lo0 = hi0 = vertices[i, 0, 0]
+        lo1 = hi1 = vertices[i, 0, 1]
+        lo2 = hi2 = vertices[i, 0, 2]
+        for c in range(1, vertices.shape[1]):
+            x, y, z = vertices[i, c, 0], vertices[i, c, 1], vertices[i, c, 2]
+            lo0 = min(lo0, x)
+            hi0 = max(hi0, x)
+            lo1 = min(lo1, y)
+            hi1 = max(hi1, y)
+            lo2 = min(lo2, z)
+            hi2 = max(hi2, z)
+        for s in range(S):
+            if hi0 < wlo[s, 0] - pad or lo0 > whi[s, 0] + pad:
+                continue
+            if hi1 < wlo[s, 1] - pad or lo1 > whi[s, 1] + pad:
+                continue
+            if hi2 < wlo[s, 2] - pad or lo2 > whi[s, 2] + pad:
+                continue
+            if k == cap:
+                cap *= 2
+                idx2 = np.empty((cap, 2), dtype=np.int64)
+                bnd2 = np.empty((cap, 6))
+                idx2[:k] = idx[:k]
+                bnd2[:k] = bnd[:k]
+                idx = idx2
+                bnd = bnd2
+            for a in range(3):
+                m = np.inf
+                x = -np.inf
+                for c in range(vertices.shape[1]):
+                    val = (
+                        M[s, a, 0] * vertices[i, c, 0] + M[s, a, 1] * vertices[i, c, 1]
+                        + M[s, a, 2] * vertices[i, c, 2] + M[s, a, 3]
+                    )
+                    m = min(m, val)
+                    x = max(x, val)
+                bnd[k, a] = m
+                bnd[k, 3 + a] = x
+            idx[k, 0] = i
+            idx[k, 1] = s
+            k += 1
+    return idx[:k], bnd[:k]
+
+
+def _sheet_pairs(vertices: ArrayF64, sheets: tuple[Sheet, ...], pad: float) -> tuple[np.ndarray, ArrayF64, _SheetArrays]:
+    """Pairs (piece, sheet) of pieces (N, 8, 3) near sheets, their local bounds and the
+    sheets' arrays."""
+    arr = _sheet_arrays(tuple(sheets))
+    if vertices.shape[0] == 0 or not sheets:
+        return np.zeros((0, 2), dtype=np.int64), np.zeros((0, 6)), arr
+    idx, bnd = _pairs_kernel(np.ascontiguousarray(vertices, dtype=np.float64), arr.M, arr.wlo, arr.whi, float(pad))
+    return idx, bnd, arr
 
 
 def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     """(N,) whether each piece lies inside one sheet's shell (the static noise sheets)."""
     out = np.zeros(vertices.shape[0], dtype=bool)
-    lo, hi = vertices.min(axis=1), vertices.max(axis=1)
-    for sh in ctx.sheets:
-        idx = _near_sheet(lo, hi, sh, 0.0)
-        if len(idx) == 0:
-            continue
-        (x0, y0), (x1, y1) = sh.local_box()
-        llo, lhi = _local_bounds(vertices[idx], sh)
-        out[idx] |= (
-            (llo[:, 2] >= -1e-6) & (lhi[:, 2] <= sh.height)
-            & (llo[:, 0] >= x0) & (lhi[:, 0] <= x1) & (llo[:, 1] >= y0) & (lhi[:, 1] <= y1)
-        )
+    idx, b, arr = _sheet_pairs(vertices, ctx.sheets, 0.0)
+    if len(idx) == 0:
+        return out
+    s = idx[:, 1]
+    f = arr.face[s]
+    inside = (
+        (b[:, 2] >= -1e-6) & (b[:, 5] <= arr.height[s])
+        & (b[:, 0] >= f[:, 0]) & (b[:, 3] <= f[:, 2]) & (b[:, 1] >= f[:, 1]) & (b[:, 4] <= f[:, 3])
+    )
+    out[idx[inside, 0]] = True
     return out
+
+
+def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray, ArrayF64]:
+    """Pairs (piece, sheet) where the piece crosses the sheet's top face over its face,
+    and the piece's local bounds in that sheet's frame."""
+    eps = ctx.params.support_eps
+    idx, b, arr = _sheet_pairs(vertices, ctx.sheets, eps)
+    if len(idx) == 0:
+        return idx, b
+    s = idx[:, 1]
+    f = arr.face[s]
+    h = arr.height[s]
+    # what stands on the surface (legs) crosses the top face; its feet, inside the
+    # sheet, lie within the margin of that crossing
+    near = (b[:, 2] <= h + eps) & (b[:, 5] >= h)
+    near &= (b[:, 3] >= f[:, 0]) & (b[:, 0] <= f[:, 2]) & (b[:, 4] >= f[:, 1]) & (b[:, 1] <= f[:, 3])
+    return idx[near], b[near]
 
 
 def in_shells(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
@@ -358,17 +458,15 @@ def judge_dynamic(
     on_surface = np.zeros(K, dtype=bool)  # reaches a sheet (the floor, an obstacle face)
     if p.flying:
         supported = touch_m.copy()
-        for sh in ctx.sheets:
-            idx = _near_sheet(lo, hi, sh, eps)
-            idx = idx[~shell_cut[idx]]
-            if len(idx) == 0:
-                continue
-            (x0, y0), (x1, y1) = sh.local_box()
-            llo, lhi = _local_bounds(vertices[idx], sh)
-            ok = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= -eps)
-            ok &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
-            supported[labels[idx[ok]]] = True
-            on_surface[labels[idx[ok]]] = True
+        pairs, b, arr = _sheet_pairs(vertices, ctx.sheets, eps)
+        keep = ~shell_cut[pairs[:, 0]]
+        pairs, b = pairs[keep], b[keep]
+        sh_i = pairs[:, 1]
+        f = arr.face[sh_i]
+        ok = (b[:, 2] <= arr.height[sh_i] + eps) & (b[:, 5] >= -eps)
+        ok &= (b[:, 3] >= f[:, 0]) & (b[:, 0] <= f[:, 2]) & (b[:, 4] >= f[:, 1]) & (b[:, 1] <= f[:, 3])
+        supported[labels[pairs[ok, 0]]] = True
+        on_surface[labels[pairs[ok, 0]]] = True
         fires["flying"] = ~supported & ~spared_shape
     else:
         supported = np.ones(K, dtype=bool)
@@ -429,25 +527,9 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     """(N,) whether each piece crosses the top face of some sheet over that sheet's face:
     the pieces that keep the sheet under them (:func:`sheets_under`)."""
     out = np.zeros(vertices.shape[0], dtype=bool)
-    if vertices.shape[0] == 0:
-        return out
-    plo, phi = vertices.min(axis=1), vertices.max(axis=1)
-    for sh in ctx.sheets:
-        idx = _near_sheet(plo, phi, sh, ctx.params.support_eps)
-        if len(idx):
-            out[idx] |= _crossing(vertices[idx], sh, ctx.params.support_eps)[0]
+    idx, _ = _crossing_pairs(vertices, ctx)
+    out[idx[:, 0]] = True
     return out
-
-
-def _crossing(vertices: ArrayF64, sh: Sheet, eps: float) -> tuple[np.ndarray, ArrayF64, ArrayF64]:
-    """Which pieces cross the sheet's top face over its face, and their local bounds."""
-    (x0, y0), (x1, y1) = sh.local_box()
-    llo, lhi = _local_bounds(vertices, sh)
-    # what stands on the surface (legs) crosses the top face; its feet, inside the
-    # sheet, lie within the margin of that crossing
-    near = (llo[:, 2] <= sh.height + eps) & (lhi[:, 2] >= sh.height)
-    near &= (lhi[:, 0] >= x0) & (llo[:, 0] <= x1) & (lhi[:, 1] >= y0) & (llo[:, 1] <= y1)
-    return near, llo, lhi
 
 
 def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
@@ -457,20 +539,16 @@ def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     if vertices.shape[0] == 0 or not ctx.sheets:
         return np.zeros((0, 8, 3))
     margin = ctx.params.floor_shell_margin
-    eps = ctx.params.support_eps
-    plo, phi = vertices.min(axis=1), vertices.max(axis=1)
+    pairs, bounds = _crossing_pairs(vertices, ctx)
     out = []
     heights: tuple[np.ndarray | None, ...] = ctx.sheet_heights or (None,) * len(ctx.sheets)
-    for sh, hmap in zip(ctx.sheets, heights, strict=True):
-        idx = _near_sheet(plo, phi, sh, eps)
-        if len(idx) == 0:
-            continue
+    for k in np.unique(pairs[:, 1]):
+        sh, hmap = ctx.sheets[int(k)], heights[int(k)]
         (x0, y0), (x1, y1) = sh.local_box()
-        near, llo, lhi = _crossing(vertices[idx], sh, eps)
-        if not near.any():
-            continue
-        a = np.maximum(llo[near, :2] - margin, (x0, y0))
-        b = np.minimum(lhi[near, :2] + margin, (x1, y1))
+        sel = pairs[:, 1] == k
+        llo, lhi = bounds[sel, :3], bounds[sel, 3:]
+        a = np.maximum(llo[:, :2] - margin, (x0, y0))
+        b = np.minimum(lhi[:, :2] + margin, (x1, y1))
         ok = np.all(b > a, axis=1)
         a, b = a[ok], b[ok]
         if len(a) == 0:
