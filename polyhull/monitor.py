@@ -323,6 +323,7 @@ class Monitor:
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
         self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
+        self._mem_rects: list[tuple[slice, slice] | None] = []
         # the top of the floor's noise sheet (nothing crosses it without a floor sheet)
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
@@ -938,11 +939,13 @@ class Monitor:
         lo = self._seed_lo - reach
         hi = self._seed_hi + reach
         parts = []
-        # Reused every cycle: the memory's images live only inside this call (every
-        # camera's image is written below before it is read).
+        # Reused every cycle: "no segment" everywhere except the robot's rectangle of each
+        # camera (written below, and reset the next cycle).
         if self._mem_stacks is None:
-            self._mem_stacks = (ImageStack(self._stack, fill=None), ImageStack(self._stack, fill=None))
+            self._mem_stacks = (ImageStack(self._stack, fill=np.inf), ImageStack(self._stack, fill=-np.inf))
+            self._mem_rects = [None] * len(self.cell.cameras)
         mem_free, mem_end = self._mem_stacks
+        tile = self.cell.reconstruction.tile
         corners = np.stack(
             [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
             axis=1,
@@ -950,9 +953,12 @@ class Monitor:
         for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
             raster = rasters.get(cam.name)
             free = free_imgs[i]
+            prev = self._mem_rects[i]
+            if prev is not None:
+                mem_free.image(i)[prev] = np.inf  # no segment
+                mem_end.image(i)[prev] = -np.inf
+                self._mem_rects[i] = None
             if raster is None or free is None or raster.rect is None:
-                mem_free.image(i).fill(0.0)  # no segment
-                mem_end.image(i).fill(0.0)
                 continue
             u0, u1, v0, v1 = raster.rect
             win = (slice(v0, v1 + 1), slice(u0, u1 + 1))
@@ -978,11 +984,19 @@ class Monitor:
                 ]
             ).astype(np.int64)
             zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
+            # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
+            H, W = cam.shape
+            tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile
+            tw = (slice(tv0, min((v1 // tile + 1) * tile, H)), slice(tu0, min((u1 // tile + 1) * tile, W)))
+            self._mem_rects[i] = tw
             f, e = memory_segments(
-                raster.covered, raster.back, free, s.free_static, rects, zr, mem_free.image(i), mem_end.image(i)
+                raster.covered[tw], raster.back[tw], free[tw], s.free_static[tw],
+                rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw],
             )
-            tiles = tile_segments(f, e, raster.covered, self.cell.reconstruction.tile, raster.front, raster.back, self._tile_tol)
+            tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)
             if len(tiles):
+                tiles[:, 0:2] += tu0
+                tiles[:, 2:4] += tv0
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
             return PieceSet.empty()
