@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from polyhull.engine.pixels import small_gaps
 
@@ -66,3 +68,39 @@ def test_a_patch_next_to_anything_but_the_static_scene_stays(where: str) -> None
         free[20:23, 30:33] = fs[20:23, 30:33]
         invalid[20:23, 30:33] = False
     assert not _gaps(free, end, invalid, fs).any()
+
+
+def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: ANN001, ANN202
+    """The rule written plainly with scipy.ndimage.label (the oracle of the compiled pass)."""
+    from scipy import ndimage
+
+    mask = (free < end) & invalid
+    labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
+    out = np.zeros(mask.shape, dtype=bool)
+    H, W = mask.shape
+    for k in range(1, n + 1):
+        vs, us = np.nonzero(labels == k)
+        ring = ndimage.binary_dilation(labels == k, structure=np.ones((3, 3), dtype=bool)) & (labels != k)
+        touches_border = vs.min() == 0 or us.min() == 0 or vs.max() == H - 1 or us.max() == W - 1
+        closed = not touches_border and not ((fs[ring] <= near) | (free[ring] < fs[ring])).any()
+        zmax = float(end[vs, us].astype(np.float64).max())
+        if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
+            out[vs, us] = True
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_small_gaps_match_the_plain_rule(seed: int) -> None:
+    """The compiled cluster pass marks exactly what the rule written with ndimage marks."""
+    rng = np.random.default_rng(seed)
+    H, W = (int(x) for x in rng.integers(3, 30, size=2))
+    fs = rng.uniform(0.5, 5, size=(H, W)).astype(np.float32)
+    fs[rng.random((H, W)) < 0.05] = 0.3
+    free = np.where(rng.random((H, W)) < 0.8, fs, fs * rng.uniform(0.5, 1, size=(H, W))).astype(np.float32)
+    end = np.where(rng.random((H, W)) < 0.4, fs, free).astype(np.float32)
+    invalid = rng.random((H, W)) < rng.uniform(0.05, 0.6)
+    free = np.where(invalid & (rng.random((H, W)) < 0.7), np.float32(0.3), free).astype(np.float32)
+    size = float(rng.uniform(0.05, 2.0))
+    got = small_gaps(free, end, invalid, fs, 0.3, 30.0, 30.0, size)
+    np.testing.assert_array_equal(got, _reference_small_gaps(free, end, invalid, fs, 0.3, 30.0, 30.0, size))

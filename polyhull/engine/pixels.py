@@ -164,37 +164,62 @@ def classify_frame(
 
 
 @nb.njit(cache=True, nogil=True)
-def _gap_stats(labels, n, free, end, fs, near):  # pragma: no cover - compiled
-    """Per label: pixel bounding box, farthest segment end, and whether every 8-neighbour
-    outside the label is inside the image, sees something and is free to its static
-    free depth."""
-    H, W = labels.shape
-    u0 = np.full(n + 1, W, dtype=np.int64)
-    u1 = np.full(n + 1, -1, dtype=np.int64)
-    v0 = np.full(n + 1, H, dtype=np.int64)
-    v1 = np.full(n + 1, -1, dtype=np.int64)
-    zmax = np.zeros(n + 1)
-    closed = np.ones(n + 1, dtype=np.bool_)
+def _small_gaps(free, end, invalid, fs, near, fx, fy, size, out):  # pragma: no cover - compiled
+    """Mark in ``out`` the 8-connected clusters of segment pixels without a reading
+    (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
+    pass over the image, each cluster followed from its first pixel (a stack)."""
+    H, W = free.shape
+    seen = np.zeros((H, W), dtype=np.bool_)
+    stack = np.empty((64, 2), dtype=np.int64)
+    comp = np.empty((64, 2), dtype=np.int64)
     for v in range(H):
         for u in range(W):
-            k = labels[v, u]
-            if k == 0:
+            if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
                 continue
-            u0[k] = min(u0[k], u)
-            u1[k] = max(u1[k], u)
-            v0[k] = min(v0[k], v)
-            v1[k] = max(v1[k], v)
-            zmax[k] = max(zmax[k], np.float64(end[v, u]))
-            if not closed[k]:
-                continue
-            for dv in range(-1, 2):
-                for du in range(-1, 2):
-                    vv, uu = v + dv, u + du
-                    if vv < 0 or vv >= H or uu < 0 or uu >= W:
-                        closed[k] = False
-                    elif labels[vv, uu] != k and (fs[vv, uu] <= near or free[vv, uu] < fs[vv, uu]):
-                        closed[k] = False
-    return u0, u1, v0, v1, zmax, closed
+            seen[v, u] = True
+            stack[0, 0] = v
+            stack[0, 1] = u
+            ns = 1
+            nc = 0
+            u0, u1, v0, v1 = u, u, v, v
+            zmax = 0.0
+            closed = True
+            while ns > 0:
+                ns -= 1
+                pv, pu = stack[ns, 0], stack[ns, 1]
+                if nc == comp.shape[0]:
+                    grown = np.empty((2 * nc, 2), dtype=np.int64)
+                    grown[:nc] = comp[:nc]
+                    comp = grown
+                comp[nc, 0] = pv
+                comp[nc, 1] = pu
+                nc += 1
+                u0 = min(u0, pu)
+                u1 = max(u1, pu)
+                v0 = min(v0, pv)
+                v1 = max(v1, pv)
+                zmax = max(zmax, np.float64(end[pv, pu]))
+                for dv in range(-1, 2):
+                    for du in range(-1, 2):
+                        qv, qu = pv + dv, pu + du
+                        if qv < 0 or qv >= H or qu < 0 or qu >= W:
+                            closed = False
+                            continue
+                        if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
+                            if not seen[qv, qu]:
+                                seen[qv, qu] = True
+                                if ns == stack.shape[0]:
+                                    grown = np.empty((2 * ns, 2), dtype=np.int64)
+                                    grown[:ns] = stack[:ns]
+                                    stack = grown
+                                stack[ns, 0] = qv
+                                stack[ns, 1] = qu
+                                ns += 1
+                        elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
+                            closed = False
+            if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
+                for c in range(nc):
+                    out[comp[c, 0], comp[c, 1]] = True
 
 
 def small_gaps(
@@ -216,16 +241,9 @@ def small_gaps(
     Clusters at the image border, next to pixels that see nothing, or next to the robot,
     a person or a flying pixel, are never small gaps.
     """
-    from scipy import ndimage
-
-    mask = (free < end) & invalid
-    if not mask.any():
-        return mask
-    labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    u0, u1, v0, v1, zmax, closed = _gap_stats(labels, n, free, end, free_static, float(near))
-    small = closed & ((u1 - u0 + 3) * zmax / fx < size) & ((v1 - v0 + 3) * zmax / fy < size)
-    small[0] = False
-    return small[labels]
+    out = np.zeros(free.shape, dtype=bool)
+    _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), out)
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
@@ -275,21 +293,14 @@ def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - com
         h1, w1 = shapes[lev, 0], shapes[lev, 1]
         o0, o1 = offsets[lev - 1], offsets[lev]
         for r in range(h1):
+            # a cell past the last row or column repeats it (no change to min or max)
+            a = o0 + 2 * r * w0
+            b = o0 + min(2 * r + 1, h0 - 1) * w0
             for c in range(w1):
-                lo = np.float32(np.inf)
-                hi = np.float32(-np.inf)
-                for dr in range(2):
-                    rr = 2 * r + dr
-                    if rr >= h0:
-                        continue
-                    for dc in range(2):
-                        cc = 2 * c + dc
-                        if cc >= w0:
-                            continue
-                        lo = min(lo, mins[o0 + rr * w0 + cc])
-                        hi = max(hi, maxs[o0 + rr * w0 + cc])
-                mins[o1 + r * w1 + c] = lo
-                maxs[o1 + r * w1 + c] = hi
+                c0 = 2 * c
+                c1 = min(c0 + 1, w0 - 1)
+                mins[o1 + r * w1 + c] = min(min(mins[a + c0], mins[a + c1]), min(mins[b + c0], mins[b + c1]))
+                maxs[o1 + r * w1 + c] = max(max(maxs[a + c0], maxs[a + c1]), max(maxs[b + c0], maxs[b + c1]))
 
 
 def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray) -> None:
