@@ -82,7 +82,8 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
         vs, us = np.nonzero(labels == k)
         ring = ndimage.binary_dilation(labels == k, structure=np.ones((3, 3), dtype=bool)) & (labels != k)
         touches_border = vs.min() == 0 or us.min() == 0 or vs.max() == H - 1 or us.max() == W - 1
-        closed = not touches_border and not ((fs[ring] <= near) | (free[ring] < fs[ring])).any()
+        f64 = fs[ring].astype(np.float64)  # compared in float64, as the compiled pass does
+        closed = not touches_border and not ((f64 <= near) | (free[ring] < fs[ring])).any()
         zmax = float(end[vs, us].astype(np.float64).max())
         if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
             out[vs, us] = True
