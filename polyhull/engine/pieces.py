@@ -110,22 +110,29 @@ class PieceSet:
 
 def piece_vertices(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
     """(N, 8, 3) world vertices of pieces ``boxes`` (N, 7)."""
-    n = boxes.shape[0]
-    if n == 0:
+    if boxes.shape[0] == 0:
         return np.zeros((0, 8, 3))
-    c = boxes[:, 0].astype(np.int64)
-    fx, fy, cx, cy = (stack.intr[c, j] for j in range(4))
-    ua, ub = boxes[:, 1] - 0.5, boxes[:, 2] + 0.5
-    va, vb = boxes[:, 3] - 0.5, boxes[:, 4] + 0.5
-    us = np.stack([ua, ub, ub, ua], axis=1)  # (N, 4)
-    vs = np.stack([va, va, vb, vb], axis=1)
-    out = np.empty((n, 8, 3))
-    for half, z in enumerate((boxes[:, 5], boxes[:, 6])):
-        x = (us - cx[:, None]) / fx[:, None] * z[:, None]
-        y = (vs - cy[:, None]) / fy[:, None] * z[:, None]
-        pc = np.stack([x, y, np.broadcast_to(z[:, None], x.shape)], axis=2)  # (N, 4, 3)
-        out[:, 4 * half : 4 * half + 4] = np.einsum("nij,nkj->nki", stack.R_wc[c], pc) + stack.t_wc[c][:, None, :]
+    out = np.empty((boxes.shape[0], 8, 3))
+    _piece_vertices(np.ascontiguousarray(boxes, dtype=np.float64), stack.intr, stack.R_wc, stack.t_wc, out)
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _piece_vertices(boxes, intr, R, t, out):  # pragma: no cover - compiled
+    for n in range(boxes.shape[0]):
+        c = int(boxes[n, 0])
+        fx, fy, cx, cy = intr[c, 0], intr[c, 1], intr[c, 2], intr[c, 3]
+        ua, ub = boxes[n, 1] - 0.5, boxes[n, 2] + 0.5
+        va, vb = boxes[n, 3] - 0.5, boxes[n, 4] + 0.5
+        for half in range(2):
+            z = boxes[n, 5 + half]
+            for k in range(4):
+                u = ua if k == 0 or k == 3 else ub
+                v = va if k < 2 else vb
+                x = (u - cx) / fx * z
+                y = (v - cy) / fy * z
+                for i in range(3):
+                    out[n, 4 * half + k, i] = R[c, i, 0] * x + R[c, i, 1] * y + R[c, i, 2] * z + t[c, i]
 
 
 def piece_volumes(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
