@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import fcl
 import manifold3d as m3
+import numba as nb
 import numpy as np
 import trimesh
 
@@ -251,22 +252,20 @@ class RobotDistanceModel:
                 if d < best.distance:
                     best = DistanceResult(d, pts, name)
         if pieces is not None and pieces.shape[0]:
-            inside = points_in_hexahedra(inner_pts, pieces)
-            if inside.any():
-                return DistanceResult(0.0, None, names[int(np.argmax(inside))])
-            centers = 0.5 * (pieces.min(axis=1) + pieces.max(axis=1))
-            radii = np.linalg.norm(pieces - centers[:, None, :], axis=2).max(axis=1)
-            spheres = {}
-            for name in names:
+            pieces = np.ascontiguousarray(pieces, dtype=np.float64)
+            sph_c = np.empty((len(names), 3))
+            sph_r = np.empty(len(names))
+            for j, name in enumerate(names):
                 c, r = self._spheres[name]
                 T = T_world_links[name]
-                spheres[name] = (T[:3, :3] @ c + T[:3, 3], r)
-            lower = np.empty((len(names), len(centers)))
-            upper = min(best.distance, cutoff)
-            mids = pieces.mean(axis=1)  # inside each convex piece
-            for j, (name, (c, r)) in enumerate(spheres.items()):
-                lower[j] = np.linalg.norm(centers - c, axis=1) - radii - r
-                upper = min(upper, float(np.linalg.norm(mids - inner[name], axis=1).min()))
+                sph_c[j] = T[:3, :3] @ c + T[:3, 3]
+                sph_r[j] = r
+            lower, near_inner, mid_gap = _piece_bounds(pieces, sph_c, sph_r, np.ascontiguousarray(inner_pts, dtype=np.float64))
+            if near_inner.any():  # a link's inner point in a piece's box: the exact test
+                inside = points_in_hexahedra(inner_pts, pieces[near_inner])
+                if inside.any():
+                    return DistanceResult(0.0, None, names[int(np.argmax(inside))])
+            upper = min(best.distance, cutoff, mid_gap)
             low = lower.min(axis=0)
             # nearest first, in batches: a batch's BVH is built only while some of its
             # pieces can still be nearer than the best distance so far
@@ -291,6 +290,56 @@ class RobotDistanceModel:
                     if d < best.distance:
                         best = DistanceResult(d, pts, name)
         return best
+
+
+@nb.njit(cache=True, nogil=True)
+def _piece_bounds(pieces, sph_c, sph_r, inner):  # pragma: no cover - compiled
+    """For hexahedra (N, 8, 3) and the links' bounding balls (L, 3), (L,): (L, N) lower
+    bounds of each piece's distance to each link (centre distance less both radii, with
+    the piece's box centre and its farthest vertex); (N,) whether some link's inner point
+    (L, 3) lies in the piece's bounding box; and the least distance from a piece's vertex
+    mean (inside the convex piece) to a link's inner point (an upper bound of the
+    distance)."""
+    n = pieces.shape[0]
+    L = sph_c.shape[0]
+    lower = np.empty((L, n))
+    near = np.zeros(n, dtype=np.bool_)
+    upper = np.inf
+    for i in range(n):
+        lo = np.empty(3)
+        hi = np.empty(3)
+        mid = np.zeros(3)
+        for a in range(3):
+            lo[a] = pieces[i, 0, a]
+            hi[a] = pieces[i, 0, a]
+        for k in range(8):
+            for a in range(3):
+                x = pieces[i, k, a]
+                lo[a] = min(lo[a], x)
+                hi[a] = max(hi[a], x)
+                mid[a] += x
+        c0 = 0.5 * (lo[0] + hi[0])
+        c1 = 0.5 * (lo[1] + hi[1])
+        c2 = 0.5 * (lo[2] + hi[2])
+        rad = 0.0
+        for k in range(8):
+            dx = pieces[i, k, 0] - c0
+            dy = pieces[i, k, 1] - c1
+            dz = pieces[i, k, 2] - c2
+            rad = max(rad, np.sqrt(dx * dx + dy * dy + dz * dz))
+        for j in range(L):
+            dx = c0 - sph_c[j, 0]
+            dy = c1 - sph_c[j, 1]
+            dz = c2 - sph_c[j, 2]
+            lower[j, i] = np.sqrt(dx * dx + dy * dy + dz * dz) - rad - sph_r[j]
+            p0, p1, p2 = inner[j, 0], inner[j, 1], inner[j, 2]
+            if lo[0] <= p0 <= hi[0] and lo[1] <= p1 <= hi[1] and lo[2] <= p2 <= hi[2]:
+                near[i] = True
+            dx = mid[0] / 8.0 - p0
+            dy = mid[1] / 8.0 - p1
+            dz = mid[2] / 8.0 - p2
+            upper = min(upper, np.sqrt(dx * dx + dy * dy + dz * dz))
+    return lower, near, upper
 
 
 def _displacement(T0: ArrayF64, T1: ArrayF64, center: ArrayF64, radius: float) -> float:
