@@ -38,6 +38,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import numba as nb
 import numpy as np
 
 from ..typed import ArrayF64
@@ -87,10 +88,36 @@ def distance_lower_bounds(vertices: ArrayF64, spheres: ArrayF64) -> ArrayF64:
     padded pieces lie in the balls ``spheres`` (S, 4): centre distance minus both radii."""
     if vertices.shape[0] == 0 or len(spheres) == 0:
         return np.full(vertices.shape[0], np.inf)
-    c = vertices.mean(axis=1)
-    rad = np.linalg.norm(vertices - c[:, None, :], axis=2).max(axis=1)
-    d = np.linalg.norm(c[:, None, :] - spheres[None, :, :3], axis=2) - spheres[None, :, 3]
-    return np.maximum(d.min(axis=1) - rad, 0.0)
+    return _lower_bounds(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(spheres, dtype=np.float64))
+
+
+@nb.njit(cache=True, nogil=True)
+def _lower_bounds(vertices, spheres):  # pragma: no cover - compiled
+    n, m = vertices.shape[0], vertices.shape[1]
+    out = np.empty(n)
+    for i in range(n):
+        c0 = c1 = c2 = 0.0
+        for k in range(m):
+            c0 += vertices[i, k, 0]
+            c1 += vertices[i, k, 1]
+            c2 += vertices[i, k, 2]
+        c0 /= m
+        c1 /= m
+        c2 /= m
+        rad = 0.0
+        for k in range(m):
+            dx = vertices[i, k, 0] - c0
+            dy = vertices[i, k, 1] - c1
+            dz = vertices[i, k, 2] - c2
+            rad = max(rad, np.sqrt(dx * dx + dy * dy + dz * dz))
+        d = np.inf
+        for s in range(spheres.shape[0]):
+            dx = c0 - spheres[s, 0]
+            dy = c1 - spheres[s, 1]
+            dz = c2 - spheres[s, 2]
+            d = min(d, np.sqrt(dx * dx + dy * dy + dz * dz) - spheres[s, 3])
+        out[i] = max(d - rad, 0.0)
+    return out
 
 
 OWN = 1
