@@ -21,6 +21,7 @@ hide from every camera: the monitor adds the padding to the protective separatio
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -66,6 +67,14 @@ class PaddedPieces:
                 verts.append(np.ascontiguousarray(grown[keep]))
                 tris.append(np.ascontiguousarray(remap[hull.simplices]))
         return cls(tuple(links), tuple(verts), tuple(tris), float(padding))
+
+    @functools.cached_property
+    def all_triangles(self) -> np.ndarray:
+        """(F, 3) every piece's triangles, indexing the pieces' vertices stacked in order."""
+        offsets = np.cumsum([0] + [len(v) for v in self.vertices])[:-1]
+        if not self.triangles:
+            return np.zeros((0, 3), dtype=np.int64)
+        return np.ascontiguousarray(np.concatenate([t + o for t, o in zip(self.triangles, offsets, strict=True)]))
 
     def world(self, T_world_links: Mapping[str, ArrayF64]) -> list[ArrayF64]:
         """Hull vertices of every piece in the world frame at the given link poses."""
@@ -270,11 +279,12 @@ def rasterize_robot(
     if buffers is None:
         buffers = RasterBuffers((H, W))
     rect = np.array([W, -1, H, -1], dtype=np.int64)
-    for verts, tris in zip(pieces_world, pieces.triangles, strict=True):
-        pc = camera.world_to_camera(verts)
+    if len(pieces_world):
+        # every piece in one call: the triangles index the stacked vertices
+        pc = camera.world_to_camera(np.concatenate(pieces_world))
         # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
         pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
-        _raster(pix, tris, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
+        _raster(pix, pieces.all_triangles, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
     (covered, front, back, start), i = buffers.take()
     box: tuple[int, int, int, int] | None = None
     if rect[1] >= rect[0]:
