@@ -96,12 +96,16 @@ def any_overlap(qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> n
         return out
     blo = np.ascontiguousarray(blo, dtype=np.float64)
     bhi = np.ascontiguousarray(bhi, dtype=np.float64)
-    order = np.argsort(blo[:, 0], kind="stable")
-    keys = np.ascontiguousarray(blo[order, 0])
-    extent = float((bhi[:, 0] - blo[:, 0]).max())
-    _any(
-        np.ascontiguousarray(qlo, dtype=np.float64),
-        np.ascontiguousarray(qhi, dtype=np.float64),
-        blo, bhi, order, keys, extent, out,
-    )
+    qlo = np.ascontiguousarray(qlo, dtype=np.float64)
+    qhi = np.ascontiguousarray(qhi, dtype=np.float64)
+    # A query scans the boxes starting within the longest box's extent before it: the few
+    # long boxes are scanned in a pass of their own, so they do not widen every scan.
+    ext = bhi[:, 0] - blo[:, 0]
+    cut = float(np.quantile(ext, 0.9))
+    for part in (np.nonzero(ext <= cut)[0], np.nonzero(ext > cut)[0]):
+        if len(part) == 0:
+            continue
+        order = part[np.argsort(blo[part, 0], kind="stable")]
+        keys = np.ascontiguousarray(blo[order, 0])
+        _any(qlo, qhi, blo, bhi, order, keys, float(ext[part].max()), out)
     return out
