@@ -932,8 +932,10 @@ class Monitor:
 
         Behind the padded robot (its back depth) in every robot-covered pixel, the segment
         to the static free depth holds C n M (what the robot hides, not freed by this
-        camera); only pixels whose rays meet the seeds' boxes grown by ``reach`` are built,
-        then carved like any piece, and kept where they meet the boxes.
+        camera); only the covered pixels of the tiles that the projections of the seeds'
+        boxes grown by ``reach`` meet are built (each tile with the depth range of the
+        boxes that meet it: :func:`polyhull.engine.pixels.memory_segments`), then carved
+        like any piece, and kept where they meet the boxes.
         """
         assert self._seed_lo is not None and self._seed_hi is not None
         lo = self._seed_lo - reach
@@ -991,7 +993,7 @@ class Monitor:
             self._mem_rects[i] = tw
             f, e = memory_segments(
                 raster.covered[tw], raster.back[tw], free[tw], s.free_static[tw],
-                rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw],
+                rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw], tile,
             )
             tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)
             if len(tiles):
