@@ -60,7 +60,7 @@ from .engine.pieces import (
 from .engine.pixels import (
     classify_frame,
     memory_segments,
-    small_gaps,
+    small_gap_pixels,
     tile_segments,
     window_range,
 )
@@ -878,16 +878,16 @@ class Monitor:
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
-            gap = small_gaps(
+            vu = small_gap_pixels(
                 cls.free, cls.end, cls.invalid, s.free_static, cam.near,
                 cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
             )
-            if gap.any():
-                v_idx, u_idx = np.nonzero(gap)
+            if len(vu):
+                v_idx, u_idx = vu[:, 0], vu[:, 1]
                 gaps = np.column_stack(
-                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[gap], cls.end[gap]]
+                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], cls.end[v_idx, u_idx]]
                 )
-                cls.free[gap] = cls.end[gap]
+                cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
         if depth is not None:
             pyramids.build_camera(i, cls.free)
         tiles = tile_segments(

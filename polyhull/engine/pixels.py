@@ -164,14 +164,16 @@ def classify_frame(
 
 
 @nb.njit(cache=True, nogil=True)
-def _small_gaps(free, end, invalid, fs, near, fx, fy, size, out):  # pragma: no cover - compiled
-    """Mark in ``out`` the 8-connected clusters of segment pixels without a reading
+def _small_gaps(free, end, invalid, fs, near, fx, fy, size):  # pragma: no cover - compiled
+    """(G, 2) the pixels (v, u) of the 8-connected clusters of segment pixels without a reading
     (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
     pass over the image, each cluster followed from its first pixel (a stack)."""
     H, W = free.shape
     seen = np.zeros((H, W), dtype=np.bool_)
     stack = np.empty((64, 2), dtype=np.int64)
     comp = np.empty((64, 2), dtype=np.int64)
+    out = np.empty((64, 2), dtype=np.int64)
+    n_out = 0
     for v in range(H):
         for u in range(W):
             if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
@@ -218,8 +220,13 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size, out):  # pragma: no 
                         elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
                             closed = False
             if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
-                for c in range(nc):
-                    out[comp[c, 0], comp[c, 1]] = True
+                if n_out + nc > out.shape[0]:
+                    grown = np.empty((2 * (n_out + nc), 2), dtype=np.int64)
+                    grown[:n_out] = out[:n_out]
+                    out = grown
+                out[n_out : n_out + nc] = comp[:nc]
+                n_out += nc
+    return out[:n_out]
 
 
 def small_gaps(
@@ -242,8 +249,16 @@ def small_gaps(
     a person or a flying pixel, are never small gaps.
     """
     out = np.zeros(free.shape, dtype=bool)
-    _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), out)
+    vu = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
+    out[vu[:, 0], vu[:, 1]] = True
     return out
+
+
+def small_gap_pixels(
+    free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
+) -> np.ndarray:
+    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask)."""
+    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size))
 
 
 @nb.njit(cache=True, nogil=True)
