@@ -189,12 +189,7 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size):  # pragma: no cover
             while ns > 0:
                 ns -= 1
                 pv, pu = stack[ns, 0], stack[ns, 1]
-                if nc == comp.shape[0]:
-                    grown = np.empty((2 * nc, 2), dtype=np.int64)
-                    grown[:nc] = comp[:nc]
-                    comp = grown
-                comp[nc, 0] = pv
-                comp[nc, 1] = pu
+                comp = push_row(comp, nc, (pv, pu))
                 nc += 1
                 u0 = min(u0, pu)
                 u1 = max(u1, pu)
@@ -210,22 +205,14 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size):  # pragma: no cover
                         if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
                             if not seen[qv, qu]:
                                 seen[qv, qu] = True
-                                if ns == stack.shape[0]:
-                                    grown = np.empty((2 * ns, 2), dtype=np.int64)
-                                    grown[:ns] = stack[:ns]
-                                    stack = grown
-                                stack[ns, 0] = qv
-                                stack[ns, 1] = qu
+                                stack = push_row(stack, ns, (qv, qu))
                                 ns += 1
                         elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
                             closed = False
             if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
-                if n_out + nc > out.shape[0]:
-                    grown = np.empty((2 * (n_out + nc), 2), dtype=np.int64)
-                    grown[:n_out] = out[:n_out]
-                    out = grown
-                out[n_out : n_out + nc] = comp[:nc]
-                n_out += nc
+                for c in range(nc):
+                    out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
+                    n_out += 1
     return out[:n_out]
 
 
