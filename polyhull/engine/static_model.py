@@ -753,6 +753,28 @@ class StaticModel:
             hull_volume=float(hull.volume()),
         )
 
+    def boxes_meet(self, lo: ArrayF64, hi: ArrayF64, distance: float) -> bool:
+        """Whether some axis-aligned box [lo, hi] (N, 3) [m], grown by ``distance`` [m] on
+        every side, meets the surface of R3_static (python-fcl: a solid box against the
+        region's triangles; a box that holds a whole static component meets it too).
+
+        A grown box that does not meet it lies wholly outside R3_static, so everything in
+        the box [lo, hi] is farther than ``distance`` from R3_static, or wholly inside it.
+        The boxes are tested in order until the first that meets it.
+        """
+        if self.bvh is None:
+            return False
+        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64))
+        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
+        centre = 0.5 * (lo + hi)
+        side = hi - lo + 2.0 * distance
+        request = fcl.CollisionRequest()
+        for c, s in zip(centre, side, strict=True):
+            box = fcl.CollisionObject(fcl.Box(*s), fcl.Transform(c))
+            if fcl.collide(box, self.bvh, request, fcl.CollisionResult()) > 0:
+                return True
+        return False
+
     def hull_contains(self, points_world: ArrayF64, k_of_n: int = 1) -> np.ndarray:
         """(N,) whether points lie in C_static: fewer than k cameras' static surfaces free them.
 
