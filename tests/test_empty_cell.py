@@ -130,7 +130,7 @@ def test_boxes_meet_the_static_region_within_the_distance(paper: tuple[Monitor, 
         lo, hi = centre - size / 2, centre + size / 2
         box = m3.Manifold.cube(tuple(size)).translate(tuple(lo))
         gap = box.min_gap(region, 0.5)
-        meets = static.boxes_meet(lo[None], hi[None], eps)
+        meets = bool(static.boxes_meet(lo[None], hi[None], eps)[0])
         if gap <= eps and not (box - region).volume() < 1e-12:
             assert meets, (lo, hi, gap)
             seen["near"] += 1
@@ -139,7 +139,9 @@ def test_boxes_meet_the_static_region_within_the_distance(paper: tuple[Monitor, 
         elif gap > eps * np.sqrt(3.0):
             seen["far"] += 1
     assert seen["near"] >= 5 and seen["far"] >= 5, seen  # both sides were tested
-    # several boxes: the first that meets decides; none that meets: False
+    # groups of boxes: a group meets it when one of its boxes does
     far = np.array([[1e3, 1e3, 1e3]])
-    assert not static.boxes_meet(far, far + 0.1, eps)
-    assert static.boxes_meet(np.vstack([far, verts[:1] - 0.01]), np.vstack([far + 0.1, verts[:1] + 0.01]), eps)
+    lo = np.vstack([far, far, verts[:1] - 0.01])
+    hi = np.vstack([far + 0.1, far + 0.1, verts[:1] + 0.01])
+    assert static.boxes_meet(lo, hi, eps, np.array([0, 1, 1]), 2).tolist() == [False, True]
+    assert static.boxes_meet(lo[:2], hi[:2], eps).tolist() == [False]

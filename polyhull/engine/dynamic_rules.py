@@ -77,6 +77,11 @@ TOUCH_EPS = 1e-4
 """Growth [m] of piece bounding boxes when grouping them into components."""
 
 
+StaticNear = Callable[[ArrayF64, ArrayF64, float, np.ndarray, int], np.ndarray]
+"""``(lo, hi, distance, groups, n_groups) -> (n_groups,)``: whether some box of each group,
+grown by ``distance``, meets the surface of R3_static."""
+
+
 def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
     """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growths by
     ``eps`` overlap are grouped, transitively (pieces that touch or overlap have
@@ -115,8 +120,9 @@ class DynamicContext:
             None without history; ``previous_hi`` their maxima.
         dt: Time since the previous cycle [s], or None.
         human_speed: v_h [m/s] of the sheet margin and the memory.
-        static_near: ``static_near(lo, hi, distance)``: whether some box [lo, hi] (N, 3)
-            grown by ``distance`` [m] meets the surface of R3_static (exact; see
+        static_near: ``static_near(lo, hi, distance, groups, n_groups)``: for each group
+            of boxes [lo, hi] (N, 3), whether some box of it grown by ``distance`` [m] meets
+            the surface of R3_static (exact; see
             :meth:`polyhull.engine.static_model.StaticModel.boxes_meet`). None: the
             ``static_touch`` grid alone decides what touches R3_static.
     """
@@ -134,7 +140,7 @@ class DynamicContext:
     previous_hi: ArrayF64 | None
     dt: float | None
     sheet_heights: tuple[np.ndarray, ...] = ()
-    static_near: Callable[[ArrayF64, ArrayF64, float], bool] | None = None
+    static_near: StaticNear | None = None
 
     @classmethod
     def of(
@@ -143,7 +149,7 @@ class DynamicContext:
         sheets: Sequence[Sheet],
         static_touch: TouchGrid,
         sheet_heights: Sequence[np.ndarray] = (),
-        static_near: Callable[[ArrayF64, ArrayF64, float], bool] | None = None,
+        static_near: StaticNear | None = None,
     ) -> DynamicContext:
         """The parts that do not change between cycles."""
         boxes = np.array([o.mesh.bounds for o in cell.obstacles], dtype=np.float64).reshape(-1, 2, 3)
@@ -449,7 +455,7 @@ def _confirm_static_touch(
     lo: ArrayF64,
     hi: ArrayF64,
     grid_touch: np.ndarray,
-    static_near: Callable[[ArrayF64, ArrayF64, float], bool],
+    static_near: StaticNear,
     eps: float,
 ) -> np.ndarray:
     """(C,) whether each of ``components`` really comes within ``eps`` of R3_static: some
@@ -463,11 +469,9 @@ def _confirm_static_touch(
     they are, which the SPEC's too_small and flying rules judge; the grid's slack kept
     dropout residue 0.16 to 0.2 m from a static blind region as if it touched it.
     """
-    out = np.zeros(len(components), dtype=bool)
-    for j, k in enumerate(components):
-        idx = np.nonzero((labels == k) & grid_touch)[0]
-        out[j] = len(idx) > 0 and static_near(lo[idx], hi[idx], eps)
-    return out
+    idx = np.nonzero(np.isin(labels, components) & grid_touch)[0]
+    group = np.searchsorted(components, labels[idx])  # components are sorted
+    return np.asarray(static_near(lo[idx], hi[idx], eps, group, len(components)), dtype=bool)
 
 
 SHEET_STEP = 0.03
