@@ -6,7 +6,9 @@ since every rule spares a set whenever it spares a part of it). A component is j
 what it touches:
 
 - a **kept static component** (the static touch grid marks voxels within ``support_eps``
-  of R3_static): R3_static passed the rules, so the union does, and the component is kept;
+  of R3_static, a superset; where it alone would spare a component from too_small or
+  flying, the touch is confirmed against R3_static's triangles): R3_static passed the
+  rules, so the union does, and the component is kept;
 - the **robot's occlusion M** (a piece that ends at the robot's shadow start, or that comes
   within ``support_eps`` of the padded robot): supported and connected, like the old
   paper-style rule that a person whose legs the robot hides stands on M;
