@@ -308,7 +308,9 @@ class Monitor:
         self._zone = self.static.zone
         self._stack = CameraStack.of(cell.cameras)
         self._carve = carve_params or CarveParams()
-        self._dyn_ctx = DynamicContext.of(cell, self.static.sheets, self.static.touch, self.static.sheet_heights)
+        self._dyn_ctx = DynamicContext.of(
+            cell, self.static.sheets, self.static.touch, self.static.sheet_heights, static_near=self.static.boxes_meet
+        )
         self._static_region_mesh = _mesh_arrays(self.static.region)
         if robot is None and cell.robot is not None:
             robot = Robot.from_spec(cell.robot)

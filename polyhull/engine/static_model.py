@@ -45,6 +45,7 @@ import fcl
 import manifold3d as m3
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..background import TaughtCamera
 from ..camera import Camera
@@ -752,6 +753,56 @@ class StaticModel:
             bvh=manifold_to_fcl(region),
             hull_volume=float(hull.volume()),
         )
+
+    def boxes_meet(
+        self, lo: ArrayF64, hi: ArrayF64, distance: float, groups: np.ndarray | None = None, n_groups: int = 1
+    ) -> np.ndarray:
+        """(G,) for each group of axis-aligned boxes [lo, hi] (N, 3) [m], whether some box of
+        the group, grown by ``distance`` [m] on every side, meets the surface of R3_static.
+
+        A grown box that does not meet it lies wholly outside R3_static, so everything in
+        the box [lo, hi] is farther than ``distance`` from R3_static, or wholly inside it.
+        A vertex of R3_static's mesh in the grown box settles it at once (a k-d tree, by
+        the Chebyshev distance to the box's centre within its smallest half side); the
+        other boxes are tested with python-fcl (a solid box against the region's triangles,
+        so a box that holds a whole static component meets it too), until each group has
+        one that meets it.
+
+        Args:
+            lo: (N, 3) box minima [m].
+            hi: (N, 3) box maxima [m].
+            distance: Growth of the boxes [m].
+            groups: (N,) the group 0..G-1 of each box; None: all boxes are one group.
+            n_groups: G.
+        """
+        out = np.zeros(n_groups, dtype=bool)
+        lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
+        hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
+        if self.bvh is None or len(lo) == 0:
+            return out
+        groups = np.zeros(len(lo), dtype=np.int64) if groups is None else np.asarray(groups, dtype=np.int64)
+        centre = 0.5 * (lo + hi)
+        half = 0.5 * (hi - lo) + distance
+        tree = self._vertex_tree
+        if tree is not None:
+            radius = half.min(axis=1)
+            gap, _ = tree.query(centre, k=1, p=np.inf, distance_upper_bound=float(radius.max()) * (1.0 + 1e-9))
+            out[groups[gap <= radius]] = True
+        request = fcl.CollisionRequest()
+        for i in range(len(lo)):
+            if out[groups[i]]:
+                continue
+            box = fcl.CollisionObject(fcl.Box(*(2.0 * half[i])), fcl.Transform(centre[i]))
+            if fcl.collide(box, self.bvh, request, fcl.CollisionResult()) > 0:
+                out[groups[i]] = True
+        return out
+
+    @functools.cached_property
+    def _vertex_tree(self) -> cKDTree | None:
+        """A k-d tree of R3_static's mesh vertices (built on first use)."""
+        if self.region.is_empty():
+            return None
+        return cKDTree(np.asarray(self.region.to_mesh64().vert_properties, dtype=np.float64)[:, :3])
 
     def hull_contains(self, points_world: ArrayF64, k_of_n: int = 1) -> np.ndarray:
         """(N,) whether points lie in C_static: fewer than k cameras' static surfaces free them.
