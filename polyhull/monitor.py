@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -102,6 +103,7 @@ class _CycleGeometry:
     robot_body: Callable[[], m3.Manifold]
     occlusion: Callable[[], m3.Manifold]
     full_pieces: Callable[[], ArrayF64]
+    lease: object = None  # holds the cycle's images (see _CycleBuffers)
     cache: dict[str, m3.Manifold] = field(default_factory=dict)
 
     def get(self, name: str) -> m3.Manifold:
@@ -266,6 +268,7 @@ class CycleImages:
     free: dict[str, np.ndarray]
     end: dict[str, np.ndarray]
     raster: dict[str, RobotRaster]
+    _lease: object = field(default=None, repr=False)  # holds the images (see _CycleBuffers)
 
 
 class Monitor:
@@ -326,6 +329,7 @@ class Monitor:
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
         self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
         self._mem_rects: list[tuple[slice, slice] | None] = []
+        self._spare_buffers: list[_CycleBuffers] = []
         # the top of the floor's noise sheet (nothing crosses it without a floor sheet)
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
@@ -627,9 +631,12 @@ class Monitor:
 
         # pixels: every camera in one compiled pass, on the pool's threads
         t0 = time.perf_counter()
-        free_stack = ImageStack(self._stack, fill=None)
-        end_stack = ImageStack(self._stack, fill=None)
-        pyramids = PyramidStack.allocate(free_stack)
+        # this cycle's images, reused once no verdict or CycleImages holds them (fresh
+        # allocations every cycle cost page faults, which serialise the two threads)
+        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack)
+        lease = _Lease()
+        weakref.finalize(lease, self._spare_buffers.append, bufs)
+        free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
         results = list(
             self._pool.map(
                 lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack, pyramids),
@@ -796,6 +803,7 @@ class Monitor:
             free={c.name: f for c, f in zip(cell.cameras, free_imgs, strict=True) if f is not None},
             end={c.name: e for c, e in zip(cell.cameras, end_imgs, strict=True) if e is not None},
             raster=rasters,
+            _lease=lease,
         )
 
         latency = time.perf_counter() - t_start
@@ -822,6 +830,7 @@ class Monitor:
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
             full_pieces=lambda: self._full_pieces(free_stack, run_carve),
+            lease=lease,
         )
         return Verdict(
             stamp=t,
@@ -1081,6 +1090,25 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
     """The pixel segments (boxes (N, 7), vertices (N, 8, 3)) the small_gaps rule freed this
     cycle, as one reported removal (they are part of R2, before the rules)."""
     return (_pieces_removed("small_gaps", PieceSet(boxes, verts), stack),) if len(boxes) else ()
+
+
+class _CycleBuffers:
+    """One cycle's images: every camera's free depth, segment ends and pyramids.
+
+    A cycle leases them (:class:`_Lease`); the verdict's lazy geometry and the monitor's
+    ``last_images`` hold the lease, and when both are gone the buffers go back to the
+    monitor's spares. A verdict kept for long keeps its own images; the monitor then
+    allocates new ones.
+    """
+
+    def __init__(self, stack: CameraStack) -> None:
+        self.free = ImageStack(stack, fill=None)
+        self.end = ImageStack(stack, fill=None)
+        self.pyramids = PyramidStack.allocate(self.free)
+
+
+class _Lease:
+    """What a cycle's readers hold while its :class:`_CycleBuffers` are in use."""
 
 
 class _CameraPixels(NamedTuple):

@@ -209,3 +209,32 @@ def test_hostile_joint_state_is_a_named_fault(fresh_monitor: Monitor, q: object)
     )
     if not real:
         assert v.q.size == 0  # never a cast of input that is not real numbers
+
+
+def test_cycle_images_are_reused_only_when_nobody_holds_them(fresh_monitor: Monitor, small_sim: Simulator) -> None:
+    """A kept verdict, and separately the images of a kept cycle, stay as they were while
+    later cycles run (their buffers are not reused); dropped ones are reused (a few buffer
+    sets in all)."""
+    import gc
+
+    mon = fresh_monitor
+    q = _q(mon)
+    kept = mon.step(small_sim.render(q, seed=1, stamp=1.0), q, stamp=1.0)  # its verdict only
+    hull = kept.hull.volume()
+    v = mon.step(small_sim.render(q, seed=2, stamp=2.0), q, stamp=2.0)
+    images = mon.last_images  # its images only
+    assert images is not None
+    del v
+    copies = {k: np.array(a) for k, a in images.free.items()}
+    first = next(iter(copies))
+    ids = set()
+    for k in range(3, 9):
+        v = mon.step(small_sim.render(q, seed=k, stamp=float(k)), q, stamp=float(k))
+        ids.add(id(mon.last_images.free[first].base))  # type: ignore[union-attr]
+        del v
+        gc.collect()
+    for k, a in images.free.items():
+        np.testing.assert_array_equal(a, copies[k])
+    kept._geometry.cache.clear()  # type: ignore[union-attr]
+    assert kept.hull.volume() == pytest.approx(hull, rel=1e-9)
+    assert len(ids) <= 3
