@@ -683,7 +683,15 @@ class Monitor:
         # The distance is decided near the frontier (about last cycle's distance): pieces
         # there, and pieces crossing the floor sheet's top within reach of it, are split
         # finely, coarser behind it (:mod:`polyhull.engine.refine` finishes the job).
-        front = 0.0 if not math.isfinite(self._prev_distance) else max(self._prev_distance - FRONT_SLACK, 0.0)
+        # the static region's distance: links measured only when their bound from the
+        # last measurement (less their motion since) is below what the pieces give
+        static_now = None if self._static_distance is None else self._static_distance.cycle(T_links)
+        last = self._prev_distance
+        if not math.isfinite(last) and static_now is not None:
+            # no last cycle (after a reset): the static region's distance, which the
+            # region's cannot exceed
+            last = float(static_now.nearer().distance)
+        front = max(last - FRONT_SLACK, 0.0) if math.isfinite(last) else 0.0
         floor_top = (self._floor_top, REACH_EXTRA + cell.plausibility.floor_shell_margin)
 
         def run_carve(init: np.ndarray, frees: ImageStack, ends: ImageStack, coarse: bool = False) -> tuple[PieceSet, bool]:
@@ -754,10 +762,6 @@ class Monitor:
             p = replace(params, size_min=size_min, alpha=alpha)
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
             return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset)[0]
-
-        # the static region's distance: links measured only when their bound from the
-        # last measurement (less their motion since) is below what the pieces give
-        static_now = None if self._static_distance is None else self._static_distance.cycle(T_links)
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
             if self._distance_model is None or static_now is None:

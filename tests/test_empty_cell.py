@@ -49,9 +49,9 @@ def test_empty_cell_distance_is_the_static_one(paper: tuple[Monitor, Simulator])
         same += abs(v.min_distance - static) <= 0.01
         lost.append(static - v.min_distance)
         assert v.counts["small_gap_pixels"] > 0  # the dropouts were there, and freed
-    # measured: 8 of these 12 cycles (54 of 100 in `polyhull bench`); the others lose up to
-    # ~0.35 m to pieces of flying pixels next to a table or the robot, or to dropout
-    # patches next to the robot (never freed there)
+    # measured: 8 of these 12 cycles (98 of 100 in `polyhull bench`, which runs on after
+    # these); the others lose up to ~0.35 m to pieces of flying pixels next to a table or
+    # the robot, or to dropout patches next to the robot (never freed there)
     assert same >= CYCLES // 2 - 1, lost
     assert max(lost) < 0.5, lost
 
@@ -82,7 +82,8 @@ def test_memory_seeds_are_the_seen_depth() -> None:
 # patch beyond the small_gaps limit (~6.2 m deep) leaves residue near the floor, 0.17 to 0.19 m
 # from a static blind region and under 1 L: too_small, once it is not taken for touching
 # R3_static. The 5 cm touch grid alone took it for touching, and it came 0.07 to 0.22 m
-# nearer the robot than the static region.
+# nearer the robot than the static region (0.03 m and more since the first carve after a
+# reset splits at the static region's distance).
 RESIDUE_CYCLES = (73, 98)
 
 
@@ -106,7 +107,7 @@ def test_dropout_residue_apart_from_the_static_region_is_too_small(paper: tuple[
         monitor._dyn_ctx = replace(exact, static_near=None)
         monitor.reset()
         grid = monitor.step(frames, q, stamp=k * DT)
-        assert grid.min_distance < static - 0.05, (grid.min_distance, static)
+        assert grid.min_distance < static - 0.01, (grid.min_distance, static)
         assert sum(r.rule == "too_small" for r in v.removed) > sum(r.rule == "too_small" for r in grid.removed)
     finally:
         monitor._dyn_ctx = exact
@@ -145,3 +146,25 @@ def test_boxes_meet_the_static_region_within_the_distance(paper: tuple[Monitor, 
     hi = np.vstack([far + 0.1, far + 0.1, verts[:1] + 0.01])
     assert static.boxes_meet(lo, hi, eps, np.array([0, 1, 1]), 2).tolist() == [False, True]
     assert static.boxes_meet(lo[:2], hi[:2], eps).tolist() == [False]
+
+
+def test_first_cycle_after_a_reset_splits_at_the_static_distance(paper: tuple[Monitor, Simulator]) -> None:
+    """With no last distance, the first carve counts pieces' sizes from the static region's
+    distance: a coarse piece far from the robot no longer seems to cross the floor sheet's
+    top and bring a wide sheet box toward it (measured before: 1.42 m against 1.87 m)."""
+    monitor, sim = paper
+    robot, model = monitor.robot, monitor._distance_model
+    assert robot is not None and model is not None
+    k = 75
+    q = robot_motion(np.asarray(monitor.cell.robot.q), robot.lower, robot.upper, k * DT)  # type: ignore[union-attr]
+    frames = sim.render(q, seed=10_000 + k, stamp=k * DT, effects=SensorEffects(uint16=True))
+    static = model.distance(
+        robot.link_transforms(q), static=monitor.static.bvh, static_contains=monitor._static_contains
+    ).distance
+    monitor.reset()
+    try:
+        v = monitor.step(frames, q, stamp=k * DT)
+        assert not v.faults, v.faults
+        assert abs(v.min_distance - static) <= 0.01, (v.min_distance, static)
+    finally:
+        monitor.reset()
