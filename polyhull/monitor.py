@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 import weakref
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple, TypeVar
@@ -36,6 +36,7 @@ import manifold3d as m3
 import numpy as np
 from scipy.spatial import ConvexHull
 
+from .camera import Camera
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, StaticDistance, winding_numbers
 from .engine.boxes import any_overlap
@@ -260,9 +261,10 @@ class CycleImages:
     Attributes:
         free: Camera name -> (H, W) engine free depth [m].
         end: Camera name -> (H, W) end of each pixel's segment [m].
-        raster: Camera name -> the padded robot's raster. Its images are the monitor's
-            buffers, reused: valid until the second :meth:`Monitor.step` after this one
-            (copy them to keep them longer).
+        raster: Camera name -> the padded robot's raster.
+
+    The images are the monitor's buffers: reused by a later cycle only once this object
+    and the cycle's verdict are both gone.
     """
 
     free: dict[str, np.ndarray]
@@ -334,8 +336,6 @@ class Monitor:
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
-        # the robot's images, written only in its rectangle (double-buffered)
-        self._raster_buffers = {c.name: RasterBuffers(c.shape) for c in cell.cameras}
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
         self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
@@ -619,11 +619,18 @@ class Monitor:
                     for n, (c, r) in zip(self._padded.links, self._piece_spheres, strict=True)
                 ]
             ).reshape(-1, 4)
+        # this cycle's images, reused once no verdict or CycleImages holds them (fresh
+        # allocations every cycle cost page faults, which serialise the two threads)
+        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack, cell.cameras)
+        lease = _Lease()
+        weakref.finalize(lease, self._spare_buffers.append, bufs)
+        free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
+
         t0 = time.perf_counter()
         rasters: dict[str, RobotRaster] = {}
         if padded_world:
             done = self._pool.map(
-                lambda cam: rasterize_robot(cam, padded_world, self._padded, self._raster_buffers[cam.name]),  # type: ignore[arg-type]
+                lambda cam: rasterize_robot(cam, padded_world, self._padded, bufs.raster[cam.name]),  # type: ignore[arg-type]
                 cell.cameras,
             )
             rasters = {cam.name: r for cam, r in zip(cell.cameras, done, strict=True)}
@@ -631,12 +638,6 @@ class Monitor:
 
         # pixels: every camera in one compiled pass, on the pool's threads
         t0 = time.perf_counter()
-        # this cycle's images, reused once no verdict or CycleImages holds them (fresh
-        # allocations every cycle cost page faults, which serialise the two threads)
-        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack)
-        lease = _Lease()
-        weakref.finalize(lease, self._spare_buffers.append, bufs)
-        free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
         results = list(
             self._pool.map(
                 lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack, pyramids),
@@ -1097,15 +1098,17 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
 
 
 class _CycleBuffers:
-    """One cycle's images: every camera's free depth, segment ends and pyramids.
+    """One cycle's images: every camera's robot raster, free depth, segment ends and
+    pyramids.
 
     A cycle leases them (:class:`_Lease`); the verdict's lazy geometry and the monitor's
     ``last_images`` hold the lease, and when both are gone the buffers go back to the
-    monitor's spares. A verdict kept for long keeps its own images; the monitor then
-    allocates new ones.
+    monitor's spares. A verdict or CycleImages kept for long keeps its own images; the
+    monitor then allocates new ones.
     """
 
-    def __init__(self, stack: CameraStack) -> None:
+    def __init__(self, stack: CameraStack, cameras: Sequence[Camera]) -> None:
+        self.raster = {c.name: RasterBuffers(c.shape) for c in cameras}
         self.free = ImageStack(stack, fill=None)
         self.end = ImageStack(stack, fill=None)
         self.pyramids = PyramidStack.allocate(self.free)

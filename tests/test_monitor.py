@@ -226,15 +226,20 @@ def test_cycle_images_are_reused_only_when_nobody_holds_them(fresh_monitor: Moni
     assert images is not None
     del v
     copies = {k: np.array(a) for k, a in images.free.items()}
+    covered = {k: np.array(r.covered) for k, r in images.raster.items()}
+    assert any(c.any() for c in covered.values())
     first = next(iter(copies))
     ids = set()
     for k in range(3, 9):
-        v = mon.step(small_sim.render(q, seed=k, stamp=float(k)), q, stamp=float(k))
+        qk = q + np.array([0.05 * k] + [0.0] * (len(q) - 1))  # the robot moves: new rasters
+        v = mon.step(small_sim.render(qk, seed=k, stamp=float(k)), qk, stamp=float(k))
         ids.add(id(mon.last_images.free[first].base))  # type: ignore[union-attr]
         del v
         gc.collect()
     for k, a in images.free.items():
         np.testing.assert_array_equal(a, copies[k])
+    for k, r in images.raster.items():
+        np.testing.assert_array_equal(r.covered, covered[k])
     kept._geometry.cache.clear()  # type: ignore[union-attr]
     assert kept.hull.volume() == pytest.approx(hull, rel=1e-9)
     assert len(ids) <= 3

@@ -88,15 +88,14 @@ def test_raster_bounds_the_padded_robot(setup, q) -> None:  # noqa: ANN001
 
 
 def test_reused_buffers_equal_fresh_images(setup) -> None:  # noqa: ANN001
-    """With reused (double-buffered) images, each raster equals a fresh one, and the
-    previous cycle's raster is untouched while the next one is built."""
+    """With reused images (reset only where the last raster wrote), each raster equals a
+    fresh one."""
     robot, padded, cams = setup
     cam = cams[0]
     buffers = RasterBuffers(cam.shape)
     rng = np.random.default_rng(3)
     lo = np.maximum(robot.lower, -2.5)
     hi = np.minimum(robot.upper, 2.5)
-    prev = prev_copy = None
     for _ in range(6):
         world = padded.world(robot.link_transforms(rng.uniform(lo, hi)))
         got = rasterize_robot(cam, world, padded, buffers)
@@ -104,9 +103,4 @@ def test_reused_buffers_equal_fresh_images(setup) -> None:  # noqa: ANN001
         for name in ("covered", "front", "back", "shadow_start"):
             np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name))
         assert got.rect == fresh.rect
-        if prev is not None:
-            for name in ("covered", "front", "back", "shadow_start"):
-                np.testing.assert_array_equal(getattr(prev, name), prev_copy[name])  # type: ignore[index]
-        prev = got
-        prev_copy = {n: np.array(getattr(got, n)) for n in ("covered", "front", "back", "shadow_start")}
     assert not buffers.zbuf[np.isfinite(buffers.zbuf)].size  # the depth buffers are reset

@@ -219,40 +219,35 @@ def _raster(pc, tris, W, H, near, zbuf, zback, rect):  # pragma: no cover - comp
 
 
 class RasterBuffers:
-    """One camera's images for :func:`rasterize_robot`, reused every cycle.
+    """One camera's images for :func:`rasterize_robot`, reused from cycle to cycle.
 
-    The depth buffers are reset after each use, only where they were written. The output
-    images are double-buffered: a cycle writes the set the cycle before last used (reset
-    only in that cycle's rectangle), so the previous cycle's raster stays valid while the
-    current one is built.
+    The depth buffers are reset after each use, only where they were written; the output
+    images are reset where the last raster wrote them, so a raster built into them is
+    valid until the next one (the monitor keeps one set per leased cycle).
     """
 
     def __init__(self, shape: tuple[int, int]) -> None:
         H, W = shape
         self.zbuf = np.full((H, W), np.inf, dtype=np.float64)
         self.zback = np.full((H, W), -np.inf, dtype=np.float64)
-        self._sets = [_empty_images(H, W) for _ in range(2)]
-        self._rects: list[tuple[int, int, int, int] | None] = [None, None]
-        self._next = 0
+        self._images = _empty_images(H, W)
+        self._rect: tuple[int, int, int, int] | None = None
 
-    def take(self) -> tuple[tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32], int]:
-        """The image set to write next (reset to "not covered") and its index."""
-        i = self._next
-        self._next = 1 - i
-        old = self._rects[i]
-        if old is not None:
-            u0, u1, v0, v1 = old
-            covered, front, back, start = self._sets[i]
+    def take(self) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
+        """The images, reset to "not covered"."""
+        if self._rect is not None:
+            u0, u1, v0, v1 = self._rect
+            covered, front, back, start = self._images
             covered[v0 : v1 + 1, u0 : u1 + 1] = False
             front[v0 : v1 + 1, u0 : u1 + 1] = np.inf
             back[v0 : v1 + 1, u0 : u1 + 1] = -np.inf
             start[v0 : v1 + 1, u0 : u1 + 1] = np.inf
-            self._rects[i] = None
-        return self._sets[i], i
+            self._rect = None
+        return self._images
 
-    def written(self, i: int, rect: tuple[int, int, int, int] | None) -> None:
-        """Record the rectangle set ``i`` was written in."""
-        self._rects[i] = rect
+    def written(self, rect: tuple[int, int, int, int] | None) -> None:
+        """Record the rectangle the images were written in."""
+        self._rect = rect
 
 
 def _empty_images(H: int, W: int) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
@@ -272,8 +267,8 @@ def rasterize_robot(
 ) -> RobotRaster:
     """The padded robot at the given world-frame hull vertices, in ``camera``'s image.
 
-    With ``buffers`` (one camera's, reused every cycle) only the robot's rectangle of the
-    images is written; the raster returned lives in them until the cycle after next."""
+    With ``buffers`` (one camera's, reused) only the robot's rectangle of the images is
+    written; the raster returned lives in them until they are used again."""
     H, W = camera.shape
     k = camera.intrinsics
     if buffers is None:
@@ -285,7 +280,7 @@ def rasterize_robot(
         # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
         pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
         _raster(pix, pieces.all_triangles, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
-    (covered, front, back, start), i = buffers.take()
+    covered, front, back, start = buffers.take()
     box: tuple[int, int, int, int] | None = None
     if rect[1] >= rect[0]:
         box = (int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]))
@@ -294,7 +289,7 @@ def rasterize_robot(
             float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
             float(pieces.padding), covered, front, back, start,
         )
-    buffers.written(i, box)
+    buffers.written(box)
     return RobotRaster(covered, front, back, start, box)
 
 
