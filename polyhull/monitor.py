@@ -332,6 +332,11 @@ class Monitor:
         self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
         self._mem_rects: list[tuple[slice, slice] | None] = []
         self._spare_buffers: list[_CycleBuffers] = []
+        # the rasteriser's depth buffers, one pair per camera (left reset after each use)
+        self._raster_scratch = {
+            c.name: (np.full(c.shape, np.inf, dtype=np.float64), np.full(c.shape, -np.inf, dtype=np.float64))
+            for c in cell.cameras
+        }
         # the top of the floor's noise sheet (nothing crosses it without a floor sheet)
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
@@ -621,7 +626,7 @@ class Monitor:
             ).reshape(-1, 4)
         # this cycle's images, reused once no verdict or CycleImages holds them (fresh
         # allocations every cycle cost page faults, which serialise the two threads)
-        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack, cell.cameras)
+        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack, cell.cameras, self._raster_scratch)
         lease = _Lease()
         weakref.finalize(lease, self._spare_buffers.append, bufs)
         free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
@@ -1107,8 +1112,8 @@ class _CycleBuffers:
     monitor then allocates new ones.
     """
 
-    def __init__(self, stack: CameraStack, cameras: Sequence[Camera]) -> None:
-        self.raster = {c.name: RasterBuffers(c.shape) for c in cameras}
+    def __init__(self, stack: CameraStack, cameras: Sequence[Camera], scratch: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
+        self.raster = {c.name: RasterBuffers(c.shape, scratch[c.name]) for c in cameras}
         self.free = ImageStack(stack, fill=None)
         self.end = ImageStack(stack, fill=None)
         self.pyramids = PyramidStack.allocate(self.free)

@@ -104,3 +104,29 @@ def test_reused_buffers_equal_fresh_images(setup) -> None:  # noqa: ANN001
             np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name))
         assert got.rect == fresh.rect
     assert not buffers.zbuf[np.isfinite(buffers.zbuf)].size  # the depth buffers are reset
+
+
+def test_a_failed_raster_leaves_no_stale_depth(setup, monkeypatch: pytest.MonkeyPatch) -> None:  # noqa: ANN001
+    """A raster that fails halfway resets the shared buffers: the next one equals a fresh one."""
+    import polyhull.engine.robot_raster as rr
+
+    robot, padded, cams = setup
+    cam = cams[0]
+    buffers = RasterBuffers(cam.shape)
+    world = padded.world(robot.link_transforms(np.zeros(len(robot.lower))))
+    rasterize_robot(cam, world, padded, buffers)
+
+    def failing(pix, tris, W, H, near, zbuf, zback, rect):  # noqa: ANN001, ANN202
+        zbuf[:5, :5] = 0.01  # a near depth left behind
+        raise RuntimeError("kernel failed")
+
+    with monkeypatch.context() as m:
+        m.setattr(rr, "_raster", failing)
+        with pytest.raises(RuntimeError):
+            rasterize_robot(cam, world, padded, buffers)
+    q = np.clip(np.full(len(robot.lower), 0.4), robot.lower, robot.upper)
+    world = padded.world(robot.link_transforms(q))
+    got = rasterize_robot(cam, world, padded, buffers)
+    fresh = rasterize_robot(cam, world, padded)
+    for name in ("covered", "front", "back", "shadow_start"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name))

@@ -226,10 +226,13 @@ class RasterBuffers:
     valid until the next one (the monitor keeps one set per leased cycle).
     """
 
-    def __init__(self, shape: tuple[int, int]) -> None:
+    def __init__(self, shape: tuple[int, int], scratch: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Images of ``shape`` (H, W); ``scratch`` are depth buffers (float64, +inf and
+        -inf) to share with other sets of the same camera (they are left reset)."""
         H, W = shape
-        self.zbuf = np.full((H, W), np.inf, dtype=np.float64)
-        self.zback = np.full((H, W), -np.inf, dtype=np.float64)
+        if scratch is None:
+            scratch = (np.full((H, W), np.inf, dtype=np.float64), np.full((H, W), -np.inf, dtype=np.float64))
+        self.zbuf, self.zback = scratch
         self._images = _empty_images(H, W)
         self._rect: tuple[int, int, int, int] | None = None
 
@@ -274,22 +277,30 @@ def rasterize_robot(
     if buffers is None:
         buffers = RasterBuffers((H, W))
     rect = np.array([W, -1, H, -1], dtype=np.int64)
-    if len(pieces_world):
-        # every piece in one call: the triangles index the stacked vertices
-        pc = camera.world_to_camera(np.concatenate(pieces_world))
-        # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
-        pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
-        _raster(pix, pieces.all_triangles, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
-    covered, front, back, start = buffers.take()
-    box: tuple[int, int, int, int] | None = None
-    if rect[1] >= rect[0]:
-        box = (int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]))
-        _finish(
-            buffers.zbuf, buffers.zback, box[0], box[1], box[2], box[3], float(camera.near),
-            float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
-            float(pieces.padding), covered, front, back, start,
-        )
-    buffers.written(box)
+    try:
+        if len(pieces_world):
+            # every piece in one call: the triangles index the stacked vertices
+            pc = camera.world_to_camera(np.concatenate(pieces_world))
+            # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
+            pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
+            _raster(pix, pieces.all_triangles, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
+        covered, front, back, start = buffers.take()
+        box: tuple[int, int, int, int] | None = None
+        if rect[1] >= rect[0]:
+            box = (int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]))
+            _finish(
+                buffers.zbuf, buffers.zback, box[0], box[1], box[2], box[3], float(camera.near),
+                float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
+                float(pieces.padding), covered, front, back, start,
+            )
+        buffers.written(box)
+    except BaseException:
+        # never leave a depth buffer half written for the next raster (a nearer front
+        # would explain more readings by the robot)
+        buffers.zbuf.fill(np.inf)
+        buffers.zback.fill(-np.inf)
+        buffers.written((0, W - 1, 0, H - 1))
+        raise
     return RobotRaster(covered, front, back, start, box)
 
 
