@@ -27,16 +27,15 @@ from __future__ import annotations
 import math
 import time
 import weakref
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 import manifold3d as m3
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from .camera import Camera
 from .cell import Cell
 from .distance import DistanceResult, RobotDistanceModel, StaticDistance, winding_numbers
 from .engine.boxes import any_overlap
@@ -104,7 +103,7 @@ class _CycleGeometry:
     robot_body: Callable[[], m3.Manifold]
     occlusion: Callable[[], m3.Manifold]
     full_pieces: Callable[[], ArrayF64]
-    lease: object = None  # holds the cycle's images (see _CycleBuffers)
+    lease: object = None  # holds the cycle's images (see _Pool)
     cache: dict[str, m3.Manifold] = field(default_factory=dict)
 
     def get(self, name: str) -> m3.Manifold:
@@ -270,7 +269,7 @@ class CycleImages:
     free: dict[str, np.ndarray]
     end: dict[str, np.ndarray]
     raster: dict[str, RobotRaster]
-    _lease: object = field(default=None, repr=False)  # holds the images (see _CycleBuffers)
+    _lease: object = field(default=None, repr=False)  # holds the images and rasters (see _Pool)
 
 
 class Monitor:
@@ -331,12 +330,17 @@ class Monitor:
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
         self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
         self._mem_rects: list[tuple[slice, slice] | None] = []
-        self._spare_buffers: list[_CycleBuffers] = []
-        # the rasteriser's depth buffers, one pair per camera (left reset after each use)
-        self._raster_scratch = {
+        # a cycle's images (held by its verdict and last_images) and its rasters (held by
+        # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
+        # one pair per camera, are left reset after each use
+        self._image_pool: _Pool[_CycleBuffers] = _Pool(lambda: _CycleBuffers(self._stack))
+        scratch = {
             c.name: (np.full(c.shape, np.inf, dtype=np.float64), np.full(c.shape, -np.inf, dtype=np.float64))
             for c in cell.cameras
         }
+        self._raster_pool: _Pool[dict[str, RasterBuffers]] = _Pool(
+            lambda: {c.name: RasterBuffers(c.shape, scratch[c.name]) for c in cell.cameras}
+        )
         # the top of the floor's noise sheet (nothing crosses it without a floor sheet)
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
@@ -626,16 +630,15 @@ class Monitor:
             ).reshape(-1, 4)
         # this cycle's images, reused once no verdict or CycleImages holds them (fresh
         # allocations every cycle cost page faults, which serialise the two threads)
-        bufs = self._spare_buffers.pop() if self._spare_buffers else _CycleBuffers(self._stack, cell.cameras, self._raster_scratch)
-        lease = _Lease()
-        weakref.finalize(lease, self._spare_buffers.append, bufs)
+        bufs, lease = self._image_pool.take()
+        raster_bufs, raster_lease = self._raster_pool.take()
         free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
 
         t0 = time.perf_counter()
         rasters: dict[str, RobotRaster] = {}
         if padded_world:
             done = self._pool.map(
-                lambda cam: rasterize_robot(cam, padded_world, self._padded, bufs.raster[cam.name]),  # type: ignore[arg-type]
+                lambda cam: rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name]),  # type: ignore[arg-type]
                 cell.cameras,
             )
             rasters = {cam.name: r for cam, r in zip(cell.cameras, done, strict=True)}
@@ -813,7 +816,7 @@ class Monitor:
             free={c.name: f for c, f in zip(cell.cameras, free_imgs, strict=True) if f is not None},
             end={c.name: e for c, e in zip(cell.cameras, end_imgs, strict=True) if e is not None},
             raster=rasters,
-            _lease=lease,
+            _lease=(lease, raster_lease),
         )
 
         latency = time.perf_counter() - t_start
@@ -1103,24 +1106,36 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
 
 
 class _CycleBuffers:
-    """One cycle's images: every camera's robot raster, free depth, segment ends and
-    pyramids.
+    """One cycle's images: every camera's free depth, segment ends and pyramids."""
 
-    A cycle leases them (:class:`_Lease`); the verdict's lazy geometry and the monitor's
-    ``last_images`` hold the lease, and when both are gone the buffers go back to the
-    monitor's spares. A verdict or CycleImages kept for long keeps its own images; the
-    monitor then allocates new ones.
-    """
-
-    def __init__(self, stack: CameraStack, cameras: Sequence[Camera], scratch: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> None:
-        self.raster = {c.name: RasterBuffers(c.shape, scratch[c.name]) for c in cameras}
+    def __init__(self, stack: CameraStack) -> None:
         self.free = ImageStack(stack, fill=None)
         self.end = ImageStack(stack, fill=None)
         self.pyramids = PyramidStack.allocate(self.free)
 
 
 class _Lease:
-    """What a cycle's readers hold while its :class:`_CycleBuffers` are in use."""
+    """What a cycle's readers hold while buffers of a :class:`_Pool` are in use."""
+
+
+class _Pool(Generic[_T]):
+    """Buffers reused once nobody holds their lease.
+
+    A cycle takes buffers with a lease (:meth:`take`); whatever reads them later (the
+    verdict's lazy geometry, ``last_images``) holds the lease, and when the lease is gone
+    the buffers go back to the spares. Buffers whose lease is kept for long stay as they
+    are; the pool then makes new ones.
+    """
+
+    def __init__(self, make: Callable[[], _T]) -> None:
+        self._make = make
+        self._spare: list[_T] = []
+
+    def take(self) -> tuple[_T, _Lease]:
+        item = self._spare.pop() if self._spare else self._make()
+        lease = _Lease()
+        weakref.finalize(lease, self._spare.append, item)
+        return item, lease
 
 
 class _CameraPixels(NamedTuple):

@@ -243,3 +243,20 @@ def test_cycle_images_are_reused_only_when_nobody_holds_them(fresh_monitor: Moni
     kept._geometry.cache.clear()  # type: ignore[union-attr]
     assert kept.hull.volume() == pytest.approx(hull, rel=1e-9)
     assert len(ids) <= 3
+
+
+def test_kept_verdicts_do_not_keep_the_rasters(fresh_monitor: Monitor, small_sim: Simulator) -> None:
+    """A verdict holds its cycle's free-depth images (its lazy geometry reads them), not the
+    robot's rasters: with every verdict kept, the rasters' buffers are still reused."""
+    mon = fresh_monitor
+    q = _q(mon)
+    kept, free_ids, raster_ids = [], set(), set()
+    for k in range(1, 7):
+        kept.append(mon.step(small_sim.render(q, seed=k, stamp=float(k)), q, stamp=float(k)))
+        images = mon.last_images
+        assert images is not None
+        name = next(iter(images.free))
+        free_ids.add(id(images.free[name].base))
+        raster_ids.add(id(images.raster[name].covered))
+    assert len(free_ids) == 6  # every kept verdict keeps its own images
+    assert len(raster_ids) <= 3
