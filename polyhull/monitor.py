@@ -262,8 +262,8 @@ class CycleImages:
         end: Camera name -> (H, W) end of each pixel's segment [m].
         raster: Camera name -> the padded robot's raster.
 
-    The images are the monitor's buffers: reused by a later cycle only once this object
-    and the cycle's verdict are both gone.
+    The images are the monitor's buffers, reused by a later cycle only once this object is
+    gone (the free-depth and end images also wait for the cycle's verdict).
     """
 
     free: dict[str, np.ndarray]
