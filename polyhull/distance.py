@@ -33,6 +33,7 @@ from .errors import GeometryError
 from .typed import ArrayF64
 
 __all__ = [
+    "ChunkedMesh",
     "DistanceResult",
     "RobotDistanceModel",
     "StaticCycle",
@@ -74,6 +75,58 @@ def _bvh(vertices: ArrayF64, faces: np.ndarray) -> fcl.BVHModel:
     model.addSubModel(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int32))
     model.endModel()
     return model
+
+
+STATIC_CHUNK = 0.5
+"""Edge [m] of the grid cells that split a large static mesh into chunks
+(:class:`ChunkedMesh`)."""
+
+
+class ChunkedMesh:
+    """A large mesh (the static region) as spatial chunks, each its own FCL BVH.
+
+    FCL's distance between a link and one BVH of the whole static region (~160 k
+    triangles, mostly ~2 m away) visits many nodes whose bounds are all near the answer
+    (~2.5 ms a link). Here each triangle goes to the chunk of the grid cell (edge
+    ``chunk``) holding its centroid, and a link is measured against the chunks in order of
+    their boxes' distance to the link's box, while that is below the link's best distance
+    so far: the same minimum (over all triangles), measured against a few small BVHs
+    (~0.8 ms). The chunks are triangle soups, as the whole mesh is to FCL: containment is
+    tested separately (a point inside every link, by winding number).
+    """
+
+    def __init__(self, vertices: ArrayF64, triangles: np.ndarray, chunk: float = STATIC_CHUNK) -> None:
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        key = np.floor(vertices[triangles].mean(axis=1) / chunk).astype(np.int64)
+        _, label = np.unique(key, axis=0, return_inverse=True)
+        label = label.ravel()
+        order = np.argsort(label, kind="stable")
+        starts = np.searchsorted(label[order], np.arange(int(label.max(initial=-1)) + 2))
+        self.objects: list[fcl.CollisionObject] = []
+        lo, hi = [], []
+        for a, b in zip(starts[:-1], starts[1:], strict=True):
+            tris = triangles[order[a:b]]
+            used, inverse = np.unique(tris, return_inverse=True)
+            v = vertices[used]
+            self.objects.append(fcl.CollisionObject(_bvh(v, inverse.reshape(-1, 3)), fcl.Transform()))
+            lo.append(v.min(axis=0))
+            hi.append(v.max(axis=0))
+        self.lo = np.array(lo, dtype=np.float64).reshape(-1, 3)
+        """(K, 3) the chunks' box minima [m]."""
+        self.hi = np.array(hi, dtype=np.float64).reshape(-1, 3)
+        """(K, 3) the chunks' box maxima [m]."""
+
+    @classmethod
+    def of_manifold(cls, region: m3.Manifold, chunk: float = STATIC_CHUNK) -> ChunkedMesh | None:
+        """The chunks of a manifold's triangles (world frame), None if it is empty."""
+        if region.is_empty():
+            return None
+        mesh = region.to_mesh64()
+        return cls(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), chunk)
+
+    def __len__(self) -> int:
+        return len(self.objects)
 
 
 def manifold_to_fcl(region: m3.Manifold) -> fcl.CollisionObject | None:
@@ -165,6 +218,7 @@ class RobotDistanceModel:
         """
         self._objects: dict[str, fcl.CollisionObject] = {}
         self._spheres: dict[str, tuple[ArrayF64, float]] = {}
+        self._corners: dict[str, ArrayF64] = {}  # (8, 3) the link-frame box's corners
         self._inner: dict[str, ArrayF64] = {}
         for name, mesh in link_geometry.items():
             if len(mesh.faces) == 0:
@@ -173,6 +227,8 @@ class RobotDistanceModel:
             v = np.asarray(mesh.vertices, dtype=np.float64)
             center = 0.5 * (v.min(axis=0) + v.max(axis=0))
             self._spheres[name] = (center, float(np.linalg.norm(v - center, axis=1).max()))
+            lo, hi = v.min(axis=0), v.max(axis=0)
+            self._corners[name] = np.array([[(hi if m & b else lo)[a] for a, b in enumerate((1, 2, 4))] for m in range(8)])
             # A point inside the link: the centroid of its volume (inside for convex parts,
             # else the vertex nearest to it, which is on the link).
             inner = np.asarray(mesh.centroid, dtype=np.float64)
@@ -197,6 +253,24 @@ class RobotDistanceModel:
         if d <= 0.0:
             return 0.0, None
         return d, np.array([result.nearest_points[0], result.nearest_points[1]], dtype=np.float64)
+
+    def query_chunks(self, chunks: ChunkedMesh, name: str, T: ArrayF64) -> tuple[float, ArrayF64 | None]:
+        """Distance and closest points (region, link) between link ``name`` at pose ``T``
+        and a chunked mesh: the chunks nearest first (by box distance to the link's box)
+        while they can be nearer than the best so far; (0, None) on contact."""
+        corners = self._corners[name] @ T[:3, :3].T + T[:3, 3]
+        blo, bhi = corners.min(axis=0), corners.max(axis=0)
+        gap = np.linalg.norm(np.maximum(np.maximum(chunks.lo - bhi, blo - chunks.hi), 0.0), axis=1)
+        best, points = math.inf, None
+        for j in np.argsort(gap, kind="stable"):
+            if gap[j] >= best:
+                break
+            d, pts = self._query(chunks.objects[int(j)], name, T)
+            if d <= 0.0:
+                return 0.0, None
+            if d < best:
+                best, points = d, pts
+        return best, points
 
     def inner_points(self, T_world_links: Mapping[str, ArrayF64]) -> dict[str, ArrayF64]:
         """A point inside (or on) every link, world frame."""
@@ -363,11 +437,11 @@ class StaticDistance:
     def __init__(
         self,
         model: RobotDistanceModel,
-        static: fcl.CollisionObject | None,
+        static: ChunkedMesh | None,
         contains: Callable[[ArrayF64], np.ndarray] | None,
     ) -> None:
         self._model = model
-        self._static = static
+        self._static = static if static is not None and len(static) else None
         self._contains = contains
         self._last: dict[str, tuple[ArrayF64, float]] = {}  # pose and distance of each link
 
@@ -428,7 +502,7 @@ class StaticCycle:
             else:
                 if self._lower[j] >= best.distance:
                     break
-                d, pts = owner._model._query(owner._static, name, self._T[name])
+                d, pts = owner._model.query_chunks(owner._static, name, self._T[name])
                 self.queries += 1
                 self._done[name] = (d, pts)
                 owner._last[name] = (np.array(self._T[name], dtype=np.float64), d)

@@ -37,7 +37,13 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from .cell import Cell
-from .distance import DistanceResult, RobotDistanceModel, StaticDistance, winding_numbers
+from .distance import (
+    ChunkedMesh,
+    DistanceResult,
+    RobotDistanceModel,
+    StaticDistance,
+    winding_numbers,
+)
 from .engine.boxes import any_overlap
 from .engine.dynamic_rules import (
     DynamicContext,
@@ -57,6 +63,7 @@ from .engine.pieces import (
     carve,
     piece_vertices,
     piece_volumes,
+    vertex_bounds,
 )
 from .engine.pixels import (
     classify_frame,
@@ -358,7 +365,7 @@ class Monitor:
             self._shell_planes = _shell_planes(self._padded, cell.plausibility.shell_thickness)
             self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
             self._static_distance: StaticDistance | None = StaticDistance(
-                self._distance_model, self.static.bvh, self._static_contains
+                self._distance_model, ChunkedMesh.of_manifold(self.static.region), self._static_contains
             )
         else:
             self._static_distance = None
@@ -807,9 +814,9 @@ class Monitor:
         # history for the next cycle: the kept dynamic pieces' boxes (not the sheet boxes,
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
-        self._prev_lo, self._prev_hi = observed.min(axis=1), observed.max(axis=1)
+        self._prev_lo, self._prev_hi = vertex_bounds(observed)
         seeds = _seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
-        self._seed_lo, self._seed_hi = seeds.min(axis=1), seeds.max(axis=1)
+        self._seed_lo, self._seed_hi = vertex_bounds(seeds)
         self._prev_stamp = t
         self._prev_distance = float(dist.distance)
         self.last_images = CycleImages(
@@ -1030,7 +1037,7 @@ class Monitor:
         pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
         if not len(pieces):
             return pieces
-        return pieces.select(any_overlap(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1), lo, hi))
+        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), lo, hi))
 
     def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""
@@ -1094,7 +1101,7 @@ def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: Came
 def _pieces_removed(rule: str, pieces: PieceSet, stack: CameraStack) -> RemovedComponent:
     """One removed component made of ``pieces`` (its mesh built when read)."""
     vols = piece_volumes(pieces.boxes, stack)
-    centres = 0.5 * (pieces.vertices.min(axis=1) + pieces.vertices.max(axis=1))
+    centres = 0.5 * np.add(*vertex_bounds(pieces.vertices))
     centroid = (centres * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
     return RemovedComponent(rule, float(vols.sum()), centroid, LazyMesh(_hexahedra_manifold, pieces.vertices))
 

@@ -161,10 +161,13 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from polyhull.distance import StaticDistance, manifold_to_fcl
+    from polyhull.distance import ChunkedMesh, StaticDistance, manifold_to_fcl
 
     region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
     obj = manifold_to_fcl(region)
+    # small chunks: a link meets several, and the chunked minimum must be the whole one's
+    chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
+    assert chunks is not None and len(chunks) > 4
     lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
     hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
 
@@ -173,7 +176,7 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     def check(seed: int, step: float) -> None:
         rng = np.random.default_rng(seed)
         q = rng.uniform(lo, hi)
-        cache = StaticDistance(model, obj, None)
+        cache = StaticDistance(model, chunks, None)
         for _ in range(12):
             q = np.clip(q + rng.uniform(-step, step, size=q.shape), lo, hi)
             T = robot.link_transforms(q)
@@ -188,7 +191,7 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
 
     check()
     # a slow motion: after the first cycle, only the links near the minimum are measured
-    cache = StaticDistance(model, obj, None)
+    cache = StaticDistance(model, chunks, None)
     q = 0.5 * (lo + hi)
     counts = []
     for k in range(20):

@@ -62,6 +62,7 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import any_overlap, overlap_groups
+from .pieces import vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
 __all__ = [
@@ -406,7 +407,7 @@ def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: 
     outside the shells (of any component: a superset of "of its own", keeps more)."""
     cut = inside & ~spared
     if cut.any() and (~inside).any():
-        lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+        lo, hi = vertex_bounds(vertices)
         m = ctx.params.floor_shell_margin
         cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m)
     return cut
@@ -431,8 +432,7 @@ def judge_dynamic(
         return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none)
     p = ctx.params
     eps = p.support_eps
-    lo = vertices.min(axis=1)
-    hi = vertices.max(axis=1)
+    lo, hi = vertex_bounds(vertices)
     labels = group_boxes(lo, hi)
     K = int(labels.max()) + 1
     clo = np.full((K, 3), np.inf)

@@ -40,7 +40,16 @@ from ..camera import Camera
 from ..typed import ArrayF64
 from .pixels import build_pyramid, push_row, pyramid_layout
 
-__all__ = ["CameraStack", "ImageStack", "PieceSet", "PyramidStack", "carve", "piece_vertices", "piece_volumes"]
+__all__ = [
+    "CameraStack",
+    "ImageStack",
+    "PieceSet",
+    "PyramidStack",
+    "carve",
+    "piece_vertices",
+    "piece_volumes",
+    "vertex_bounds",
+]
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,6 +142,34 @@ def _piece_vertices(boxes, intr, R, t, out):  # pragma: no cover - compiled
                 y = (v - cy) / fy * z
                 for i in range(3):
                     out[n, 4 * half + k, i] = R[c, i, 0] * x + R[c, i, 1] * y + R[c, i, 2] * z + t[c, i]
+
+
+def vertex_bounds(vertices: ArrayF64) -> tuple[ArrayF64, ArrayF64]:
+    """(N, 3) minima and (N, 3) maxima of each piece's vertices (N, K, 3): its bounding
+    box (compiled: numpy's strided ``min(axis=1)`` costs ~1 ms for 5,000 pieces)."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    n = v.shape[0]
+    lo, hi = np.empty((n, 3)), np.empty((n, 3))
+    if n and v.shape[1]:
+        _vertex_bounds(v, lo, hi)
+    elif n:
+        lo.fill(np.inf)
+        hi.fill(-np.inf)
+    return lo, hi
+
+
+@nb.njit(cache=True, nogil=True)
+def _vertex_bounds(v, lo, hi):  # pragma: no cover - compiled
+    for i in range(v.shape[0]):
+        for a in range(3):
+            mn = v[i, 0, a]
+            mx = mn
+            for k in range(1, v.shape[1]):
+                x = v[i, k, a]
+                mn = min(mn, x)
+                mx = max(mx, x)
+            lo[i, a] = mn
+            hi[i, a] = mx
 
 
 def piece_volumes(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
