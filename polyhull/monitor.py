@@ -686,14 +686,18 @@ class Monitor:
                     f"of the background reads beyond the reference (> {safety.background_mismatch:.1%})"
                 )
         timings["pixels"] = (time.perf_counter() - t0) * 1e3
+        if not active.all():
+            # A camera without a usable frame frees nothing, so its whole image would become
+            # pieces (thousands: ~1.5 s of geometry). Its fault latches and stops the robot,
+            # so the verdict is a stop now, with the whole zone as its region (a superset).
+            self.last_images = None
+            return self._stop_verdict(t, qv, faults, warnings, timings, t_start)
         initial = np.concatenate(init_parts) if init_parts else np.zeros((0, 7))
         zlo = np.asarray(cell.zone.min, dtype=np.float64)
         zhi = np.asarray(cell.zone.max, dtype=np.float64)
         k = cell.reconstruction.k_of_n
 
-        # A camera without a usable frame frees nothing: its whole image becomes pieces. That
-        # cycle stops the robot anyway (the fault latches), so its pieces are not split.
-        params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
+        params = self._carve
         pyramid_stack = pyramids.only(active)
 
         # The distance is decided near the frontier (about last cycle's distance): pieces
@@ -794,8 +798,8 @@ class Monitor:
             margin=cell.plausibility.floor_shell_margin,
             too_thin=cell.plausibility.too_thin,
         )
-        # no robot, or a camera without a frame (the cycle stops anyway): no refinement
-        no_refine = self._distance_model is None or not active.all()
+        # no robot: no refinement
+        no_refine = self._distance_model is None
         refined = self._timed(
             timings,
             "distance",
