@@ -910,12 +910,14 @@ class Monitor:
             s.reference, s.lower, s.upper, s.free_static, shadow,
             near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
             is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
+            tile=cell.reconstruction.tile,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
             vu = small_gap_pixels(
                 cls.free, cls.end, cls.invalid, s.free_static, cam.near,
                 cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
+                tiles=(cell.reconstruction.tile, cls.tiles),
             )
             if len(vu):
                 v_idx, u_idx = vu[:, 0], vu[:, 1]
@@ -928,6 +930,7 @@ class Monitor:
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
+            tiles=cls.tiles,
         )
         if len(tiles):
             tiles = np.column_stack([np.full(len(tiles), float(i)), tiles])

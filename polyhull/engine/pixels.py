@@ -50,6 +50,8 @@ class PixelClasses(NamedTuple):
             have no usable depth.
         far_side_share: Share of those pixels reading farther than the static band (the
             camera-moved indicator).
+        tiles: (ceil(H / tile), ceil(W / tile)) the tiles holding a segment pixel (what
+            :func:`tile_segments` visits).
     """
 
     free: ArrayF32
@@ -58,11 +60,13 @@ class PixelClasses(NamedTuple):
     invalid: np.ndarray
     invalid_share: float
     far_side_share: float
+    tiles: np.ndarray
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end, out_invalid):  # pragma: no cover - compiled
+def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
     H, W = depth.shape
+    out_tiles[:, :] = False
     n_invalid = 0
     n_far = 0
     n_seen = 0
@@ -113,6 +117,7 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
             out_end[v, u] = en
             if fr < en:
                 n_seg += 1
+                out_tiles[v // tile, u // tile] = True
     return n_seg, n_invalid, n_far, n_seen
 
 
@@ -131,6 +136,7 @@ def classify_frame(
     is_color: bool,
     out_free: ArrayF32 | None = None,
     out_end: ArrayF32 | None = None,
+    tile: int = 8,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -148,6 +154,7 @@ def classify_frame(
         is_color: Binary-depth (colour) camera.
         out_free: (H, W) float32 array to write the free depth into (a new one if None).
         out_end: (H, W) float32 array to write the segment ends into (a new one if None).
+        tile: Edge [px] of the tiles of :attr:`PixelClasses.tiles`.
     """
     H, W = free_static.shape
     if out_free is None:
@@ -155,65 +162,84 @@ def classify_frame(
     if out_end is None:
         out_end = np.empty((H, W), dtype=np.float32)
     out_invalid = np.empty((H, W), dtype=np.bool_)
+    tile = int(tile)
+    out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     n_seg, n_invalid, n_far, n_seen = _classify(
         depth, reference, lower, upper, free_static, shadow_start,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
+        tile, out_tiles,
     )
     seen = max(int(n_seen), 1)
-    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen)
+    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen, out_tiles)
 
 
 @nb.njit(cache=True, nogil=True)
-def _small_gaps(free, end, invalid, fs, near, fx, fy, size):  # pragma: no cover - compiled
+def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pragma: no cover - compiled
     """(G, 2) the pixels (v, u) of the 8-connected clusters of segment pixels without a reading
     (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
-    pass over the image, each cluster followed from its first pixel (a stack)."""
+    pass over the marked ``tiles`` (edge ``tile`` px; segment pixels lie only in them), each
+    cluster followed from its first pixel (:func:`_gap_cluster`)."""
     H, W = free.shape
     seen = np.zeros((H, W), dtype=np.bool_)
     stack = np.empty((64, 2), dtype=np.int64)
     comp = np.empty((64, 2), dtype=np.int64)
     out = np.empty((64, 2), dtype=np.int64)
     n_out = 0
-    for v in range(H):
-        for u in range(W):
-            if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
+    for tb in range(tiles.shape[0]):
+        for ub in range(tiles.shape[1]):
+            if not tiles[tb, ub]:
                 continue
-            seen[v, u] = True
-            stack[0, 0] = v
-            stack[0, 1] = u
-            ns = 1
-            nc = 0
-            u0, u1, v0, v1 = u, u, v, v
-            zmax = 0.0
-            closed = True
-            while ns > 0:
-                ns -= 1
-                pv, pu = stack[ns, 0], stack[ns, 1]
-                comp = push_row(comp, nc, (pv, pu))
-                nc += 1
-                u0 = min(u0, pu)
-                u1 = max(u1, pu)
-                v0 = min(v0, pv)
-                v1 = max(v1, pv)
-                zmax = max(zmax, np.float64(end[pv, pu]))
-                for dv in range(-1, 2):
-                    for du in range(-1, 2):
-                        qv, qu = pv + dv, pu + du
-                        if qv < 0 or qv >= H or qu < 0 or qu >= W:
-                            closed = False
-                            continue
-                        if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
-                            if not seen[qv, qu]:
-                                seen[qv, qu] = True
-                                stack = push_row(stack, ns, (qv, qu))
-                                ns += 1
-                        elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
-                            closed = False
-            if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
-                for c in range(nc):
-                    out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
-                    n_out += 1
+            for v in range(tb * tile, min((tb + 1) * tile, H)):
+                for u in range(ub * tile, min((ub + 1) * tile, W)):
+                    if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
+                        continue
+                    stack, comp, out, n_out = _gap_cluster(
+                        v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out
+                    )
     return out[:n_out]
+
+
+@nb.njit(cache=True, nogil=True)
+def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out):  # pragma: no cover - compiled
+    """Follow the cluster of pixel (v, u) (a stack); append its pixels to ``out`` when it
+    is a small gap. Returns the (possibly grown) work arrays and the count in ``out``."""
+    H, W = free.shape
+    seen[v, u] = True
+    stack[0, 0] = v
+    stack[0, 1] = u
+    ns = 1
+    nc = 0
+    u0, u1, v0, v1 = u, u, v, v
+    zmax = 0.0
+    closed = True
+    while ns > 0:
+        ns -= 1
+        pv, pu = stack[ns, 0], stack[ns, 1]
+        comp = push_row(comp, nc, (pv, pu))
+        nc += 1
+        u0 = min(u0, pu)
+        u1 = max(u1, pu)
+        v0 = min(v0, pv)
+        v1 = max(v1, pv)
+        zmax = max(zmax, np.float64(end[pv, pu]))
+        for dv in range(-1, 2):
+            for du in range(-1, 2):
+                qv, qu = pv + dv, pu + du
+                if qv < 0 or qv >= H or qu < 0 or qu >= W:
+                    closed = False
+                    continue
+                if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
+                    if not seen[qv, qu]:
+                        seen[qv, qu] = True
+                        stack = push_row(stack, ns, (qv, qu))
+                        ns += 1
+                elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
+                    closed = False
+    if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
+        for c in range(nc):
+            out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
+            n_out += 1
+    return stack, comp, out, n_out
 
 
 def small_gaps(
@@ -242,10 +268,24 @@ def small_gaps(
 
 
 def small_gap_pixels(
-    free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
+    free: ArrayF32,
+    end: ArrayF32,
+    invalid: np.ndarray,
+    free_static: ArrayF32,
+    near: float,
+    fx: float,
+    fy: float,
+    size: float,
+    tiles: tuple[int, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask)."""
-    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size))
+    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask).
+    ``tiles``: (edge [px], grid) the tiles that may hold a segment pixel
+    (:attr:`PixelClasses.tiles`), the only ones visited; None: all."""
+    if tiles is None:
+        tile, grid = 1 << 30, np.ones((1, 1), dtype=np.bool_)
+    else:
+        tile, grid = int(tiles[0]), tiles[1]
+    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), tile, grid)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -325,7 +365,7 @@ def push_row(out, n, row):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no cover - compiled
+def _tile_segments(free, end, covered, front, back, tol, tile, mask):  # pragma: no cover - compiled
     """Pieces (u0, u1, v0, v1 pixel indices inclusive, z0, z1) of one camera.
 
     A tile gives one piece, the bounding rectangle of its segment pixels from their
@@ -345,6 +385,8 @@ def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no co
     n = 0
     for tb in range(Hb):
         for ub in range(Wb):
+            if not mask[tb, ub]:
+                continue
             v0 = tb * tile
             u0 = ub * tile
             v1 = min(v0 + tile, H)
@@ -422,15 +464,24 @@ def tile_segments(
     front: ArrayF32 | None = None,
     back: ArrayF32 | None = None,
     tol: float = 0.0,
+    tiles: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N, 6) initial pieces of one camera: pixel rectangle (u0, u1, v0, v1), inclusive
     pixel indices, and depth range (z0, z1) [m] (see :func:`_tile_segments`). ``front``
     and ``back`` bound the padded robot's depth in its ``covered`` pixels; without them,
-    every tile with a covered pixel is split into pixels."""
+    every tile with a covered pixel is split into pixels. ``tiles`` (the tile grid's
+    shape) marks the tiles that may hold a segment pixel (:attr:`PixelClasses.tiles`);
+    the others are not visited. None: every tile is."""
     if front is None or back is None:
         front = np.full(free.shape, -np.inf, dtype=np.float32)
         back = np.full(free.shape, np.inf, dtype=np.float32)
-    return _tile_segments(free, end, covered, front, back, float(tol), int(tile))
+    H, W = free.shape
+    shape = ((H + tile - 1) // tile, (W + tile - 1) // tile)
+    if tiles is None:
+        tiles = np.ones(shape, dtype=np.bool_)
+    elif tiles.shape != shape:
+        raise ValueError(f"tiles: expected shape {shape}, got {tiles.shape}")
+    return _tile_segments(free, end, covered, front, back, float(tol), int(tile), tiles)
 
 
 @nb.njit(cache=True, nogil=True)
