@@ -926,7 +926,7 @@ class Monitor:
                 )
                 cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
         if depth is not None:
-            pyramids.build_camera(i, cls.free)
+            pyramids.build_camera(i)
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,

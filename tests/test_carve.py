@@ -47,3 +47,35 @@ def test_nothing_free_keeps_the_piece_whole() -> None:
     pieces, _ = carve(init, stack, active, PyramidStack.build(free, active), free, end, np.zeros((0, 4)), zlo, zhi, 1, CarveParams())
     assert len(pieces) == 1
     assert np.allclose(pieces.vertices, piece_vertices(init, stack))
+
+
+def test_pyramid_range_bounds_every_box() -> None:
+    """The pyramids' range query (level 0 read from the free image itself) gives, over any
+    pixel box, a min no larger and a max no smaller than the box's own (exact on boxes
+    under 8 px a side), for every camera of a stack of images of different sizes."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.engine.pieces import _range
+
+    cell = load_cell("fixtures/cells/small_cell.toml")
+    stack = CameraStack.of(cell.cameras)
+    free = ImageStack(stack, fill=None)
+    rng = np.random.default_rng(0)
+    for i in range(len(cell.cameras)):
+        free.image(i)[:] = rng.uniform(0.3, 6.0, size=free.shape(i)).astype(np.float32)
+    pyr = PyramidStack.build(free, np.ones(len(cell.cameras), dtype=bool))
+
+    @settings(max_examples=200, deadline=None)
+    @given(st.integers(0, len(cell.cameras) - 1), st.floats(0, 1), st.floats(0, 1), st.floats(0, 1), st.floats(0, 1))
+    def check(i: int, a: float, b: float, c: float, d: float) -> None:
+        H, W = free.shape(i)
+        u0, u1 = sorted((int(a * (W - 1)), int(b * (W - 1))))
+        v0, v1 = sorted((int(c * (H - 1)), int(d * (H - 1))))
+        lo, hi = _range(pyr.mins, pyr.maxs, pyr.image, pyr.offsets[i], pyr.shapes[i], pyr.levels[i], u0, u1, v0, v1)
+        box = free.image(i)[v0 : v1 + 1, u0 : u1 + 1]
+        assert lo <= box.min() and hi >= box.max()
+        if u1 - u0 < 8 and v1 - v0 < 8:
+            assert lo == box.min() and hi == box.max()
+
+    check()

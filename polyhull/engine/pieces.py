@@ -183,8 +183,9 @@ def piece_volumes(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
 
 
 @nb.njit(cache=True, nogil=True)
-def _range(mins, maxs, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pragma: no cover - compiled
-    """(min, max) of a pyramid over a superset of pixel box [pu0, pu1] x [pv0, pv1]."""
+def _range(mins, maxs, image, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pragma: no cover - compiled
+    """(min, max) of a pyramid over a superset of pixel box [pu0, pu1] x [pv0, pv1]; level 0
+    is the image (at ``offsets[0]`` in ``image``)."""
     lev = 0
     while lev < nlev - 1 and (((pu1 >> lev) - (pu0 >> lev)) >= 8 or ((pv1 >> lev) - (pv0 >> lev)) >= 8):
         lev += 1
@@ -192,6 +193,14 @@ def _range(mins, maxs, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pragma: no
     w = shapes[lev, 1]
     lo = np.float32(np.inf)
     hi = np.float32(-np.inf)
+    if lev == 0:
+        for r in range(pv0, pv1 + 1):
+            base = off + r * w
+            for c in range(pu0, pu1 + 1):
+                x = image[base + c]
+                lo = min(lo, x)
+                hi = max(hi, x)
+        return lo, hi
     for r in range(pv0 >> lev, (pv1 >> lev) + 1):
         base = off + r * w
         for c in range(pu0 >> lev, (pu1 >> lev) + 1):
@@ -245,7 +254,7 @@ def _refine(free, end, img_off, W, u0, u1, v0, v1, z0, z1):  # pragma: no cover 
 @nb.njit(cache=True, nogil=True)
 def _carve(
     init, R_cw, t_cw, R_wc, t_wc, intr, size, near, active,
-    mins, maxs, pyr_off, pyr_shape, nlev, free, end, img_off,
+    mins, maxs, pyr_image, pyr_off, pyr_shape, nlev, free, end, img_off,
     spheres, zlo, zhi, k_of_n, alpha, size_min, size_max, max_pieces, d_offset, sheet_z, sheet_reach,
 ):  # pragma: no cover - compiled
     n_cam = R_cw.shape[0]
@@ -323,7 +332,7 @@ def _carve(
                 continue  # outside i's image: not seen
             inside = pu0 >= 0 and pv0 >= 0 and pu1 <= W - 1 and pv1 <= H - 1
             lo, hi = _range(
-                mins, maxs, pyr_off[i], pyr_shape[i], nlev[i],
+                mins, maxs, pyr_image, pyr_off[i], pyr_shape[i], nlev[i],
                 max(pu0, 0), min(pu1, W - 1), max(pv0, 0), min(pv1, H - 1),
             )
             if inside and zmin > near[i] and zmax < lo:
@@ -434,23 +443,29 @@ class CarveParams:
 class PyramidStack(NamedTuple):
     """Every camera's free-depth pyramids in one flat array (built once per cycle).
 
+    Level 0 of camera i's pyramids is its free depth image itself, read from ``image``
+    (the :class:`ImageStack` the pyramids were allocated for: build them after the
+    images are final, and do not change the images while the pyramids are in use).
+
     Attributes:
-        mins: All cameras' min pyramids, one after the other.
+        mins: All cameras' min pyramids (levels 1..), one after the other.
         maxs: The max pyramids, likewise.
-        offsets: (n, L) where camera i's level l starts in ``mins``.
+        image: The free depth images, flat (:attr:`ImageStack.flat`): level 0.
+        offsets: (n, L) where camera i's level l starts in ``mins`` (level 0: in ``image``).
         shapes: (n, L, 2) the (rows, cols) of each level.
         levels: (n,) the levels of each camera (0 without a frame).
     """
 
     mins: np.ndarray
     maxs: np.ndarray
+    image: np.ndarray
     offsets: np.ndarray
     shapes: np.ndarray
     levels: np.ndarray
 
     @classmethod
     def allocate(cls, free: ImageStack) -> PyramidStack:
-        """Room for every camera's pyramids (written by :meth:`build_camera`)."""
+        """Room for the pyramids of ``free``'s images (written by :meth:`build_camera`)."""
         n = len(free.offsets)
         layouts = [pyramid_layout(*free.shape(i)) for i in range(n)]
         L = max(len(o) for o, _ in layouts)
@@ -460,19 +475,27 @@ class PyramidStack(NamedTuple):
         base = 0
         for i, (o, shp) in enumerate(layouts):
             offsets[i, : len(o)] = o + base
+            offsets[i, 0] = free.offsets[i]
             shapes[i, : len(o)] = shp
             levels[i] = len(o)
-            base += int((shp[:, 0] * shp[:, 1]).sum())
-        return cls(np.empty(base, dtype=np.float32), np.empty(base, dtype=np.float32), offsets, shapes, levels)
+            base += int((shp[1:, 0] * shp[1:, 1]).sum())
+        mins, maxs = np.empty(base, dtype=np.float32), np.empty(base, dtype=np.float32)
+        return cls(mins, maxs, free.flat, offsets, shapes, levels)
 
-    def build_camera(self, i: int, free: np.ndarray) -> None:
+    def build_camera(self, i: int) -> None:
         """Write camera ``i``'s pyramids of its free depth image (thread-safe per camera)."""
         L = int(self.levels[i])
-        o = self.offsets[i, :L] - self.offsets[i, 0]
         shp = self.shapes[i, :L]
-        start = int(self.offsets[i, 0])
-        size = int((shp[:, 0] * shp[:, 1]).sum())
-        build_pyramid(free, self.mins[start : start + size], self.maxs[start : start + size], o, shp)
+        H, W = int(shp[0, 0]), int(shp[0, 1])
+        o0 = int(self.offsets[i, 0])
+        image = self.image[o0 : o0 + H * W].reshape(H, W)
+        if L < 2:
+            return
+        start = int(self.offsets[i, 1])
+        o = self.offsets[i, :L] - start
+        o[0] = 0
+        size = int((shp[1:, 0] * shp[1:, 1]).sum())
+        build_pyramid(image, self.mins[start : start + size], self.maxs[start : start + size], o, shp)
 
     def only(self, active: np.ndarray) -> PyramidStack:
         """The same pyramids, with the cameras not ``active`` left out (no levels)."""
@@ -483,7 +506,7 @@ class PyramidStack(NamedTuple):
         """The pyramids of the active cameras' free depth images."""
         out = cls.allocate(free)
         for i in np.nonzero(active)[0]:
-            out.build_camera(int(i), free.image(int(i)))
+            out.build_camera(int(i))
         return out.only(active)
 
 
@@ -545,7 +568,7 @@ def carve(
         np.ascontiguousarray(initial, dtype=np.float64),
         stack.R_cw, stack.t_cw, stack.R_wc, stack.t_wc, stack.intr, stack.size, stack.near,
         np.asarray(active, dtype=np.bool_),
-        pyramids.mins, pyramids.maxs, pyramids.offsets, pyramids.shapes, pyramids.levels,
+        pyramids.mins, pyramids.maxs, pyramids.image, pyramids.offsets, pyramids.shapes, pyramids.levels,
         free.flat, end.flat, free.offsets,
         np.ascontiguousarray(robot_spheres, dtype=np.float64).reshape(-1, 4),
         np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),

@@ -313,29 +313,38 @@ def window_range(img: np.ndarray, rects: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def pyramid_layout(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
     """Offsets (L,) and (rows, cols) shapes (L, 2) of the levels of an (H, W) image's
-    min/max pyramid, flattened level after level (level l has 2^l x 2^l pixel cells)."""
+    min/max pyramid (level l has 2^l x 2^l pixel cells). Level 0 is the image itself
+    (offset 0, not stored); levels 1.. are flattened one after the other from offset 0."""
     shapes = [(H, W)]
     while shapes[-1][0] > 1 or shapes[-1][1] > 1:
         h, w = shapes[-1]
         shapes.append((-(-h // 2), -(-w // 2)))
     shp = np.array(shapes, dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(shp[:, 0] * shp[:, 1])[:-1]]).astype(np.int64)
+    offsets = np.zeros(len(shp), dtype=np.int64)
+    offsets[2:] = np.cumsum(shp[1:-1, 0] * shp[1:-1, 1])
     return offsets, shp
 
 
 @nb.njit(cache=True, nogil=True)
 def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - compiled
     H, W = free.shape
-    for v in range(H):
-        for u in range(W):
-            mins[v * W + u] = free[v, u]
-            maxs[v * W + u] = free[v, u]
-    for lev in range(1, shapes.shape[0]):
+    if shapes.shape[0] > 1:
+        h1, w1 = shapes[1, 0], shapes[1, 1]
+        for r in range(h1):
+            # a cell past the last row or column repeats it (no change to min or max)
+            ra = 2 * r
+            rb = min(2 * r + 1, H - 1)
+            for c in range(w1):
+                c0 = 2 * c
+                c1 = min(c0 + 1, W - 1)
+                x0, x1, x2, x3 = free[ra, c0], free[ra, c1], free[rb, c0], free[rb, c1]
+                mins[r * w1 + c] = min(min(x0, x1), min(x2, x3))
+                maxs[r * w1 + c] = max(max(x0, x1), max(x2, x3))
+    for lev in range(2, shapes.shape[0]):
         h0, w0 = shapes[lev - 1, 0], shapes[lev - 1, 1]
         h1, w1 = shapes[lev, 0], shapes[lev, 1]
         o0, o1 = offsets[lev - 1], offsets[lev]
         for r in range(h1):
-            # a cell past the last row or column repeats it (no change to min or max)
             a = o0 + 2 * r * w0
             b = o0 + min(2 * r + 1, h0 - 1) * w0
             for c in range(w1):
@@ -346,8 +355,9 @@ def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - com
 
 
 def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray) -> None:
-    """Write the min and max pyramids of an (H, W) free depth image into ``mins`` and
-    ``maxs`` (flat, laid out by :func:`pyramid_layout`; range queries for carving)."""
+    """Write the levels 1.. of the min and max pyramids of an (H, W) free depth image into
+    ``mins`` and ``maxs`` (flat, laid out by :func:`pyramid_layout`; level 0 is the image
+    itself; range queries for carving)."""
     _build_pyramid(free, mins, maxs, offsets, shapes)
 
 
