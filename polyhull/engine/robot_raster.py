@@ -132,7 +132,8 @@ def _polygons(vertices: ArrayF64, simplices: np.ndarray, equations: ArrayF64) ->
         d = vertices[idx] - vertices[idx].mean(axis=0)
         xy = np.column_stack([d @ a, d @ b])
         ring = idx if len(idx) == 3 else idx[ConvexHull(xy).vertices]  # counter-clockwise (2-D)
-        if len(ring) == 3 and np.cross(xy[1] - xy[0], xy[2] - xy[0]) < 0:
+        e1, e2 = xy[1] - xy[0], xy[2] - xy[0]
+        if len(ring) == 3 and e1[0] * e2[1] - e1[1] * e2[0] < 0:
             ring = ring[::-1]
         polys.append(ring)
     P = max(len(q) for q in polys)
