@@ -718,8 +718,11 @@ class Monitor:
             p = params
             if coarse:
                 p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
-                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p)
-            return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top)
+                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, pool=self._pool)
+            return carve(
+                init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top,
+                pool=self._pool,
+            )
 
         pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_stack, end_stack))
         if overflow:
@@ -781,7 +784,7 @@ class Monitor:
         def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
             p = replace(params, size_min=size_min, alpha=alpha)
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
-            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset)[0]
+            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
             if self._distance_model is None or static_now is None:

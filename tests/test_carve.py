@@ -79,3 +79,27 @@ def test_pyramid_range_bounds_every_box() -> None:
             assert lo == box.min() and hi == box.max()
 
     check()
+
+
+def test_carving_on_two_threads_gives_the_same_pieces() -> None:
+    """Carving split over a pool's two threads keeps the same set of pieces as one call."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cell, stack, free, end, active = _setup(3.5)
+    rng = np.random.default_rng(1)
+    img = free.image(1)
+    img[:] = rng.uniform(2.0, 5.0, size=img.shape).astype(np.float32)  # camera 1 frees in patches
+    u0 = rng.integers(0, 150, size=200).astype(float)
+    v0 = rng.integers(0, 110, size=200).astype(float)
+    init = np.column_stack([np.zeros(200), u0, u0 + 7, v0, v0 + 7, np.full(200, 1.0), np.full(200, 5.5)])
+    zlo, zhi = np.asarray(cell.zone.min, float), np.asarray(cell.zone.max, float)
+    pyr = PyramidStack.build(free, active)
+    params = CarveParams(alpha=0.1, size_min=0.05, size_max=0.3)
+    one, _ = carve(init, stack, active, pyr, free, end, np.array([[0.0, 0.0, 1.0, 0.3]]), zlo, zhi, 1, params)
+    with ThreadPoolExecutor(2) as pool:
+        two, _ = carve(init, stack, active, pyr, free, end, np.array([[0.0, 0.0, 1.0, 0.3]]), zlo, zhi, 1, params, pool=pool)
+    assert len(one) > len(init)  # carving split pieces
+    key = lambda b: sorted(map(tuple, b))  # noqa: E731
+    assert key(one.boxes) == key(two.boxes)
+    order = np.lexsort(two.boxes.T[::-1])
+    np.testing.assert_array_equal(two.vertices[order], piece_vertices(two.boxes[order], stack))

@@ -30,6 +30,7 @@ commoner: both only keep more. Pieces entirely outside the zone's box are droppe
 from __future__ import annotations
 
 from collections.abc import Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -550,6 +551,7 @@ def carve(
     params: CarveParams,
     offset: float = 0.0,
     sheet: tuple[float, float] = (0.0, 0.0),
+    pool: Executor | None = None,
 ) -> tuple[PieceSet, bool]:
     """Carve the initial pieces (N, 7) by every other active camera's free depth.
 
@@ -559,13 +561,18 @@ def carve(
     that crosses the height ``z`` [m] (the top of the floor's noise sheet) within ``reach``
     of that offset is split down to ``size_min`` too.
 
+    With a ``pool`` (two workers or more) and enough pieces, the initial pieces are carved
+    in two halves on its threads (every piece is carved on its own, so the result is the
+    same set of pieces; the halves' outputs are concatenated, the first half's first), each
+    half with half the piece budget.
+
     Returns:
         (the kept pieces, True if the piece budget was reached).
     """
     if initial.shape[0] == 0:
         return PieceSet.empty(), False
-    boxes, overflow = _carve(
-        np.ascontiguousarray(initial, dtype=np.float64),
+    initial = np.ascontiguousarray(initial, dtype=np.float64)
+    args = (
         stack.R_cw, stack.t_cw, stack.R_wc, stack.t_wc, stack.intr, stack.size, stack.near,
         np.asarray(active, dtype=np.bool_),
         pyramids.mins, pyramids.maxs, pyramids.image, pyramids.offsets, pyramids.shapes, pyramids.levels,
@@ -573,6 +580,24 @@ def carve(
         np.ascontiguousarray(robot_spheres, dtype=np.float64).reshape(-1, 4),
         np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),
         int(k_of_n), float(params.alpha), float(params.size_min), float(params.size_max),
-        int(params.max_pieces), float(offset), float(sheet[0]), float(sheet[1]),
     )
-    return PieceSet(boxes, piece_vertices(boxes, stack)), bool(overflow)
+    tail = (float(offset), float(sheet[0]), float(sheet[1]))
+    if pool is None or initial.shape[0] < PARALLEL_MIN:
+        boxes, overflow = _carve(initial, *args, int(params.max_pieces), *tail)
+        return PieceSet(boxes, piece_vertices(boxes, stack)), bool(overflow)
+    budget = max(int(params.max_pieces) // 2, 1)
+
+    def half(part: ArrayF64) -> tuple[ArrayF64, ArrayF64, bool]:
+        b, o = _carve(part, *args, budget, *tail)
+        return b, piece_vertices(b, stack), bool(o)
+
+    # interleaved halves: neighbouring tiles (similar work) go to both threads
+    done = list(pool.map(half, (initial[0::2], initial[1::2])))
+    return (
+        PieceSet(np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])),
+        any(d[2] for d in done),
+    )
+
+
+PARALLEL_MIN = 64
+"""Fewest initial pieces that :func:`carve` splits over a pool's threads."""
