@@ -66,6 +66,7 @@ from .engine.pieces import (
     vertex_bounds,
 )
 from .engine.pixels import (
+    box_rects,
     classify_frame,
     memory_segments,
     small_gap_pixels,
@@ -989,10 +990,6 @@ class Monitor:
             self._mem_rects = [None] * len(self.cell.cameras)
         mem_free, mem_end = self._mem_stacks
         tile = self.cell.reconstruction.tile
-        corners = np.stack(
-            [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
-            axis=1,
-        )  # (B, 8, 3)
         for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
             raster = rasters.get(cam.name)
             free = free_imgs[i]
@@ -1008,25 +1005,13 @@ class Monitor:
             rows = v0 + np.nonzero(raster.covered[win].any(axis=1))[0]
             cols = u0 + np.nonzero(raster.covered[win].any(axis=0))[0]
             s_min = float(raster.back[win][raster.covered[win]].min())
-            uv, z = cam.project(corners.reshape(-1, 3))
-            uv = uv.reshape(-1, 8, 2)
-            z = z.reshape(-1, 8)
-            ok = (z.max(axis=1) > max(cam.near, s_min)) & (z.min(axis=1) > 1e-6)
-            with np.errstate(invalid="ignore"):
-                pu0 = np.floor(uv[:, :, 0].min(axis=1) + 0.5)
-                pu1 = np.floor(uv[:, :, 0].max(axis=1) + 0.5)
-                pv0 = np.floor(uv[:, :, 1].min(axis=1) + 0.5)
-                pv1 = np.floor(uv[:, :, 1].max(axis=1) + 0.5)
-            ok &= (pu1 >= cols[0]) & (pu0 <= cols[-1]) & (pv1 >= rows[0]) & (pv0 <= rows[-1])
-            sel = np.nonzero(ok)[0]
-            # only the robot's bounding rectangle can hold covered pixels
-            rects = np.column_stack(
-                [
-                    np.maximum(pu0[sel], cols[0]), np.minimum(pu1[sel], cols[-1]),
-                    np.maximum(pv0[sel], rows[0]), np.minimum(pv1[sel], rows[-1]),
-                ]
-            ).astype(np.int64)
-            zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
+            # the grown seed boxes behind the robot's nearest back depth, as pixel
+            # rectangles within the rows and columns holding covered pixels
+            k = cam.intrinsics
+            rects, zr = box_rects(
+                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, s_min),
+                (int(cols[0]), int(cols[-1]), int(rows[0]), int(rows[-1])),
+            )
             # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
             H, W = cam.shape
             tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile

@@ -32,6 +32,7 @@ __all__ = [
     "build_pyramid",
     "tile_segments",
     "memory_segments",
+    "box_rects",
     "small_gaps",
     "window_range",
 ]
@@ -571,3 +572,71 @@ def memory_segments(
         _memory(covered, robot_back, free, free_static, np.ascontiguousarray(rects, dtype=np.int64),
                 np.ascontiguousarray(z_ranges, dtype=np.float64), int(cell), out_f, out_e)
     return out_f, out_e
+
+
+def box_rects(
+    lo: np.ndarray, hi: np.ndarray, T_camera_world: np.ndarray, intrinsics: tuple[float, float, float, float],
+    z_beyond: float, window: tuple[int, int, int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pixel rectangles and depth ranges of world boxes [lo, hi] (B, 3) in a camera.
+
+    A box counts when all its corners are in front of the camera (z > 1e-6), some corner
+    is deeper than ``z_beyond`` [m], and the pixel rectangle of its corners' projections
+    meets ``window`` (u0, u1, v0, v1, inclusive). Returns (S, 4) int64 rectangles (u0, u1,
+    v0, v1) clipped to the window and (S, 2) the corners' z range, for the boxes that
+    count, in order (one compiled pass; no corner array)."""
+    fx, fy, cx, cy = intrinsics
+    T = np.ascontiguousarray(T_camera_world, dtype=np.float64)
+    n = lo.shape[0]
+    rects = np.empty((n, 4), dtype=np.int64)
+    zr = np.empty((n, 2))
+    k = _box_rects(
+        np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64), T,
+        float(fx), float(fy), float(cx), float(cy), float(z_beyond),
+        int(window[0]), int(window[1]), int(window[2]), int(window[3]), rects, zr,
+    )
+    return rects[:k], zr[:k]
+
+
+@nb.njit(cache=True, nogil=True)
+def _box_rects(lo, hi, T, fx, fy, cx, cy, z_beyond, c0, c1, r0, r1, rects, zr):  # pragma: no cover - compiled
+    k = 0
+    for b in range(lo.shape[0]):
+        umin = np.inf
+        umax = -np.inf
+        vmin = np.inf
+        vmax = -np.inf
+        zmin = np.inf
+        zmax = -np.inf
+        for m in range(8):
+            x = hi[b, 0] if m & 1 else lo[b, 0]
+            y = hi[b, 1] if m & 2 else lo[b, 1]
+            z = hi[b, 2] if m & 4 else lo[b, 2]
+            px = x * T[0, 0] + y * T[0, 1] + z * T[0, 2] + T[0, 3]
+            py = x * T[1, 0] + y * T[1, 1] + z * T[1, 2] + T[1, 3]
+            pz = x * T[2, 0] + y * T[2, 1] + z * T[2, 2] + T[2, 3]
+            zmin = min(zmin, pz)
+            zmax = max(zmax, pz)
+            if pz > 1e-6:
+                u = fx * px / pz + cx
+                v = fy * py / pz + cy
+                umin = min(umin, u)
+                umax = max(umax, u)
+                vmin = min(vmin, v)
+                vmax = max(vmax, v)
+        if not (zmax > z_beyond and zmin > 1e-6):
+            continue
+        pu0 = np.floor(umin + 0.5)
+        pu1 = np.floor(umax + 0.5)
+        pv0 = np.floor(vmin + 0.5)
+        pv1 = np.floor(vmax + 0.5)
+        if not (pu1 >= c0 and pu0 <= c1 and pv1 >= r0 and pv0 <= r1):
+            continue
+        rects[k, 0] = int(max(pu0, c0))
+        rects[k, 1] = int(min(pu1, c1))
+        rects[k, 2] = int(max(pv0, r0))
+        rects[k, 3] = int(min(pv1, r1))
+        zr[k, 0] = zmin
+        zr[k, 1] = zmax
+        k += 1
+    return k
