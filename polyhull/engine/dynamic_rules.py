@@ -527,12 +527,16 @@ def judge_dynamic(
     keep = ~removed_c[labels] & ~shell_cut
 
     removed = []
+    # each component's pieces, in order (one sort, not a pass over all pieces per component)
+    by_label = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[by_label], np.arange(K + 1))
     for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
-        idx = np.nonzero(shell_cut & (labels == k))[0]
+        idx = by_label[starts[k] : starts[k + 1]]
+        idx = idx[shell_cut[idx]]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
         removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, LazyMesh(make_mesh, idx)))
     for k in np.nonzero(removed_c)[0]:
-        idx = np.nonzero(labels == k)[0]
+        idx = by_label[starts[k] : starts[k + 1]]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
         removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, LazyMesh(make_mesh, idx)))
 
