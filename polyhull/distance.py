@@ -49,7 +49,7 @@ _HEX_FACES = np.array(
 )
 
 
-DISTANCE_BATCH = 32
+DISTANCE_BATCH = 8
 """Dynamic pieces in the first BVH; they are taken nearest first (by a lower bound of
 their distance), and each further batch is four times larger while some of its pieces can
 still be nearer than the best distance so far."""
@@ -329,12 +329,18 @@ class RobotDistanceModel:
             pieces = np.ascontiguousarray(pieces, dtype=np.float64)
             sph_c = np.empty((len(names), 3))
             sph_r = np.empty(len(names))
+            poses = np.empty((len(names), 3, 4))
+            boxes = np.empty((len(names), 2, 3))
             for j, name in enumerate(names):
                 c, r = self._spheres[name]
                 T = T_world_links[name]
                 sph_c[j] = T[:3, :3] @ c + T[:3, 3]
                 sph_r[j] = r
-            lower, near_inner, mid_gap = _piece_bounds(pieces, sph_c, sph_r, np.ascontiguousarray(inner_pts, dtype=np.float64))
+                poses[j] = T[:3, :4]
+                boxes[j, 0], boxes[j, 1] = self._corners[name][0], self._corners[name][7]
+            lower, near_inner, mid_gap = _piece_bounds(
+                pieces, sph_c, sph_r, poses, boxes, np.ascontiguousarray(inner_pts, dtype=np.float64)
+            )
             if near_inner.any():  # a link's inner point in a piece's box: the exact test
                 inside = points_in_hexahedra(inner_pts, pieces[near_inner])
                 if inside.any():
@@ -367,10 +373,12 @@ class RobotDistanceModel:
 
 
 @nb.njit(cache=True, nogil=True)
-def _piece_bounds(pieces, sph_c, sph_r, inner):  # pragma: no cover - compiled
-    """For hexahedra (N, 8, 3) and the links' bounding balls (L, 3), (L,): (L, N) lower
-    bounds of each piece's distance to each link (centre distance less both radii, with
-    the piece's box centre and its farthest vertex); (N,) whether some link's inner point
+def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cover - compiled
+    """For hexahedra (N, 8, 3) and the links' bounding balls (L, 3), (L,) and bounding
+    boxes (L, 2, 3) in their frames (poses (L, 3, 4)): (L, N) lower bounds of each piece's
+    distance to each link (the larger of: centre distance less both radii, and the
+    distance from the piece's box centre to the link's box less the piece's radius, with
+    its farthest vertex); (N,) whether some link's inner point
     (L, 3) lies in the piece's bounding box; and the least distance from a piece's vertex
     mean (inside the convex piece) to a link's inner point (an upper bound of the
     distance)."""
@@ -405,7 +413,17 @@ def _piece_bounds(pieces, sph_c, sph_r, inner):  # pragma: no cover - compiled
             dx = c0 - sph_c[j, 0]
             dy = c1 - sph_c[j, 1]
             dz = c2 - sph_c[j, 2]
-            lower[j, i] = np.sqrt(dx * dx + dy * dy + dz * dz) - rad - sph_r[j]
+            ball = np.sqrt(dx * dx + dy * dy + dz * dz) - rad - sph_r[j]
+            # the centre in the link's frame, and its distance to the link's box
+            ex = c0 - poses[j, 0, 3]
+            ey = c1 - poses[j, 1, 3]
+            ez = c2 - poses[j, 2, 3]
+            g2 = 0.0
+            for a in range(3):
+                x = poses[j, 0, a] * ex + poses[j, 1, a] * ey + poses[j, 2, a] * ez
+                g = max(boxes[j, 0, a] - x, x - boxes[j, 1, a], 0.0)
+                g2 += g * g
+            lower[j, i] = max(ball, np.sqrt(g2) - rad)
             p0, p1, p2 = inner[j, 0], inner[j, 1], inner[j, 2]
             if lo[0] <= p0 <= hi[0] and lo[1] <= p1 <= hi[1] and lo[2] <= p2 <= hi[2]:
                 near[i] = True

@@ -200,3 +200,36 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
         counts.append(cycle.queries)
     assert counts[0] == len(model.link_names)
     assert sum(counts[1:]) <= 19 * 2, counts
+
+
+def test_pruned_piece_distance_equals_all_pieces(robot: Robot, model: RobotDistanceModel) -> None:
+    """Many pieces: measuring only those whose lower bound (link ball, link box) can beat
+    the best so far, in batches nearest first, gives FCL's distance to all of them."""
+    import fcl
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.distance import _bvh, hexahedra_triangles
+
+    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+
+    @settings(max_examples=20, deadline=None)
+    @given(st.integers(0, 2**31 - 1), st.integers(9, 200))
+    def check(seed: int, n: int) -> None:
+        rng = np.random.default_rng(seed)
+        T = robot.link_transforms(rng.uniform(lo_q, hi_q))
+        # around the robot, mostly beyond its reach (a few may touch it)
+        r, a = rng.uniform(0.6, 2.5, n), rng.uniform(0.0, 2.0 * np.pi, n)
+        lo = np.column_stack([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 2.0, n)])
+        pieces = _hexahedra(lo, lo + rng.uniform(0.01, 0.3, size=(n, 3)))
+        got = model.distance(T, pieces=pieces)
+        verts, tris = hexahedra_triangles(pieces)
+        whole = fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
+        want = min(model._query(whole, name, T[name])[0] for name in model.link_names)
+        if want <= 0.0:
+            assert got.distance == 0.0
+        else:
+            assert got.distance == pytest.approx(want, abs=1e-9)
+
+    check()
