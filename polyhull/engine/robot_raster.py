@@ -297,15 +297,19 @@ def _raster(pc, faces, W, H, near, zbuf, zback, rect):  # pragma: no cover - com
                         b = a - 1.0
                 if not a <= b:  # (NaN-safe)
                     continue
-            for u in range(int(a), int(b) + 1):
+            ia, ib = int(a), int(b)
+            for u in range(ia, ib + 1):
                 if planar:
-                    out = False
-                    for j in range(m):
-                        if nx[j] * u + ny[j] * v + kk[j] < 0.0:
-                            out = True
-                            break
-                    if out:
-                        continue
+                    # the interval is each half-plane's threshold widened by one pixel: the
+                    # pixels two or more inside both ends pass every half-plane
+                    if u < ia + 3 or u > ib - 3:
+                        out = False
+                        for j in range(m):
+                            if nx[j] * u + ny[j] * v + kk[j] < 0.0:
+                                out = True
+                                break
+                        if out:
+                            continue
                     wc = A * u + Bc * v + C
                     wb = max(wc - spread, wmin)
                     wf = min(wc + spread, wmax)
