@@ -65,9 +65,10 @@ class PixelClasses(NamedTuple):
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
+def _classify(depth, B, T, U, fs, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
     H, W = depth.shape
     out_tiles[:, :] = False
+    su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
     n_far = 0
     n_seen = 0
@@ -76,7 +77,6 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
         for u in range(W):
             f_s = np.float64(fs[v, u])
             d = np.float64(depth[v, u])
-            out_invalid[v, u] = False
             if f_s <= near:
                 free = near
             elif d >= T[v, u] and d <= U[v, u]:
@@ -105,7 +105,9 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
                 if usable and d > U[v, u] and d != np.inf:
                     n_far += 1
                 free = min(max(f, near), f_s)
-            end = min(f_s, np.float64(shadow[v, u]))
+            end = f_s
+            if su0 <= u <= su1 and sv0 <= v <= sv1:  # the shadow image is +inf elsewhere
+                end = min(f_s, np.float64(shadow[v, u]))
             # float32 storage rounds toward the camera (free) and away from it (end):
             # the segment only grows.
             fr = np.float32(free)
@@ -138,6 +140,7 @@ def classify_frame(
     out_free: ArrayF32 | None = None,
     out_end: ArrayF32 | None = None,
     tile: int = 8,
+    shadow_rect: tuple[int, int, int, int] | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -156,17 +159,20 @@ def classify_frame(
         out_free: (H, W) float32 array to write the free depth into (a new one if None).
         out_end: (H, W) float32 array to write the segment ends into (a new one if None).
         tile: Edge [px] of the tiles of :attr:`PixelClasses.tiles`.
+        shadow_rect: (u0, u1, v0, v1) inclusive rectangle outside which ``shadow_start`` is
+            +inf (not read there); None: the whole image.
     """
     H, W = free_static.shape
     if out_free is None:
         out_free = np.empty((H, W), dtype=np.float32)
     if out_end is None:
         out_end = np.empty((H, W), dtype=np.float32)
-    out_invalid = np.empty((H, W), dtype=np.bool_)
+    out_invalid = np.zeros((H, W), dtype=np.bool_)
     tile = int(tile)
+    rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     n_seg, n_invalid, n_far, n_seen = _classify(
-        depth, reference, lower, upper, free_static, shadow_start,
+        depth, reference, lower, upper, free_static, shadow_start, rect,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
         tile, out_tiles,
     )
@@ -181,22 +187,36 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pra
     pass over the marked ``tiles`` (edge ``tile`` px; segment pixels lie only in them), each
     cluster followed from its first pixel (:func:`_gap_cluster`)."""
     H, W = free.shape
-    seen = np.zeros((H, W), dtype=np.bool_)
-    stack = np.empty((64, 2), dtype=np.int64)
-    comp = np.empty((64, 2), dtype=np.int64)
-    out = np.empty((64, 2), dtype=np.int64)
-    n_out = 0
+    # the candidates first (a tight scan into an array that never grows: an array
+    # reassigned in the loop costs reference counting per pixel), then their clusters
+    room = 0
+    for tb in range(tiles.shape[0]):
+        for ub in range(tiles.shape[1]):
+            if tiles[tb, ub]:
+                room += (min((tb + 1) * tile, H) - tb * tile) * (min((ub + 1) * tile, W) - ub * tile)
+    cand = np.empty((room, 2), dtype=np.int64)
+    nc = 0
     for tb in range(tiles.shape[0]):
         for ub in range(tiles.shape[1]):
             if not tiles[tb, ub]:
                 continue
             for v in range(tb * tile, min((tb + 1) * tile, H)):
                 for u in range(ub * tile, min((ub + 1) * tile, W)):
-                    if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
-                        continue
-                    stack, comp, out, n_out = _gap_cluster(
-                        v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out
-                    )
+                    if invalid[v, u] and free[v, u] < end[v, u]:
+                        cand[nc, 0] = v
+                        cand[nc, 1] = u
+                        nc += 1
+    seen = np.zeros((H, W), dtype=np.bool_)
+    stack = np.empty((64, 2), dtype=np.int64)
+    comp = np.empty((64, 2), dtype=np.int64)
+    out = np.empty((64, 2), dtype=np.int64)
+    n_out = 0
+    for c in range(nc):
+        v, u = cand[c, 0], cand[c, 1]
+        if not seen[v, u]:
+            stack, comp, out, n_out = _gap_cluster(
+                v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out
+            )
     return out[:n_out]
 
 
