@@ -915,6 +915,7 @@ class Monitor:
             near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
             is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
             tile=cell.reconstruction.tile,
+            shadow_rect=(0, -1, 0, -1) if raster is None or raster.rect is None else raster.rect,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:

@@ -175,6 +175,15 @@ def test_robot_shadow_explains_pixels_behind_its_start() -> None:
     assert not np.any(cls.free[5:10, 5:15] < cls.end[5:10, 5:15])
     assert np.all(cls.free[10:15, 5:15] < cls.end[10:15, 5:15])
     assert np.all(cls.end[10:15, 5:15] == np.float32(2.0))
+    # told the rectangle outside which the shadow is +inf, the classes are the same
+    cam_ = static.camera
+    inrect = classify_frame(
+        D, static.reference, static.lower, static.upper, static.free_static, shadow,
+        near=cam_.near, far=cam_.far, tau_a=static.tau_a, tau_min=cam_.tolerance_min, is_color=False,
+        shadow_rect=(5, 14, 5, 14),
+    )
+    for name in ("free", "end", "invalid", "tiles"):
+        np.testing.assert_array_equal(getattr(inrect, name), getattr(cls, name))
 
 
 @settings(max_examples=40, deadline=None)

@@ -269,6 +269,7 @@ def _carve(
     out = np.empty((out_cap, 7), dtype=np.float64)
     no = 0
     verts = np.empty((8, 3), dtype=np.float64)
+    halves = np.empty((2, 7), dtype=np.float64)
     overflow = False
     while ns > 0:
         ns -= 1
@@ -391,7 +392,6 @@ def _carve(
                 keep = True
             else:
                 # split along the longest side
-                halves = np.empty((2, 7), dtype=np.float64)
                 if ext_u >= ext_z and ext_u >= ext_v and u1 > u0:
                     m = (u0 + u1) // 2
                     halves[0, 1], halves[0, 2], halves[0, 3], halves[0, 4] = u0, m, v0, v1
