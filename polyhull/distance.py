@@ -87,8 +87,8 @@ class ChunkedMesh:
 
     FCL's distance between a link and one BVH of the whole static region (~160 k
     triangles, mostly ~2 m away) visits many nodes whose bounds are all near the answer
-    (~2.5 ms a link). Here each triangle goes to the chunk of the grid cell (edge
-    ``chunk``) holding its centroid, and a link is measured against the chunks in order of
+    (~2.5 ms a link). Here the triangles longer than ``chunk`` are split, and each
+    triangle goes to the chunk of the grid cell (edge ``chunk``) holding its centroid, and a link is measured against the chunks in order of
     their boxes' distance to the link's box, while that is below the link's best distance
     so far: the same minimum (over all triangles), measured against a few small BVHs
     (~0.8 ms). The chunks are triangle soups, as the whole mesh is to FCL: containment is
@@ -98,6 +98,10 @@ class ChunkedMesh:
     def __init__(self, vertices: ArrayF64, triangles: np.ndarray, chunk: float = STATIC_CHUNK) -> None:
         vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+        if len(triangles):
+            # triangles longer than a chunk are split (the same surface): one long triangle
+            # would stretch its chunk's box over the cell and spoil every chunk's bound
+            vertices, triangles = trimesh.remesh.subdivide_to_size(vertices, triangles, max_edge=chunk)
         key = np.floor(vertices[triangles].mean(axis=1) / chunk).astype(np.int64)
         _, label = np.unique(key, axis=0, return_inverse=True)
         label = label.ravel()
@@ -254,23 +258,43 @@ class RobotDistanceModel:
             return 0.0, None
         return d, np.array([result.nearest_points[0], result.nearest_points[1]], dtype=np.float64)
 
-    def query_chunks(self, chunks: ChunkedMesh, name: str, T: ArrayF64) -> tuple[float, ArrayF64 | None]:
-        """Distance and closest points (region, link) between link ``name`` at pose ``T``
-        and a chunked mesh: the chunks nearest first (by box distance to the link's box)
-        while they can be nearer than the best so far; (0, None) on contact."""
-        corners = self._corners[name] @ T[:3, :3].T + T[:3, 3]
+    def query_chunks(
+        self, chunks: ChunkedMesh, name: str, T: ArrayF64, first: int = -1
+    ) -> tuple[float, ArrayF64 | None, int]:
+        """Distance, closest points (region, link) and the nearest chunk between link
+        ``name`` at pose ``T`` and a chunked mesh: chunk ``first`` (e.g. the last nearest,
+        when >= 0), then the chunks nearest first (by a lower bound of their distance: the
+        larger of their box's distance to the link's box and to the link's ball) while they
+        can be nearer than the best so far; (0, None, chunk) on contact."""
+        R, t = T[:3, :3], T[:3, 3]
+        box = self._corners[name]
+        corners = box @ R.T + t
         blo, bhi = corners.min(axis=0), corners.max(axis=0)
+        # separations along the world axes, then along the link's axes (each an orthonormal
+        # basis: the root of the summed squares is a lower bound of the distance)
         gap = np.linalg.norm(np.maximum(np.maximum(chunks.lo - bhi, blo - chunks.hi), 0.0), axis=1)
-        best, points = math.inf, None
-        for j in np.argsort(gap, kind="stable"):
+        centre = 0.5 * (chunks.lo + chunks.hi) @ R - t @ R  # chunk centres in the link frame
+        half = 0.5 * (chunks.hi - chunks.lo) @ np.abs(R)
+        own = np.linalg.norm(np.maximum(np.maximum(centre - half - box[7], box[0] - centre - half), 0.0), axis=1)
+        c, r = self._spheres[name]
+        cw = R @ c + t
+        ball = np.linalg.norm(np.maximum(np.maximum(chunks.lo - cw, cw - chunks.hi), 0.0), axis=1) - r
+        gap = np.maximum(np.maximum(gap, own), ball)
+        best, points, nearest = math.inf, None, -1
+        order = np.argsort(gap, kind="stable")
+        if 0 <= first < len(chunks):
+            order = np.concatenate([[first], order[order != first]])
+        for j in order:
             if gap[j] >= best:
+                if j == first:
+                    continue
                 break
             d, pts = self._query(chunks.objects[int(j)], name, T)
             if d <= 0.0:
-                return 0.0, None
+                return 0.0, None, int(j)
             if d < best:
-                best, points = d, pts
-        return best, points
+                best, points, nearest = d, pts, int(j)
+        return best, points, nearest
 
     def inner_points(self, T_world_links: Mapping[str, ArrayF64]) -> dict[str, ArrayF64]:
         """A point inside (or on) every link, world frame."""
@@ -462,10 +486,12 @@ class StaticDistance:
         self._static = static if static is not None and len(static) else None
         self._contains = contains
         self._last: dict[str, tuple[ArrayF64, float]] = {}  # pose and distance of each link
+        self._nearest: dict[str, int] = {}  # each link's nearest chunk when last measured
 
     def reset(self) -> None:
         """Forget the measured distances (the next cycle measures every link it needs)."""
         self._last.clear()
+        self._nearest.clear()
 
     def cycle(self, T_world_links: Mapping[str, ArrayF64]) -> StaticCycle:
         """This cycle's static distance, measured lazily."""
@@ -520,7 +546,8 @@ class StaticCycle:
             else:
                 if self._lower[j] >= best.distance:
                     break
-                d, pts = owner._model.query_chunks(owner._static, name, self._T[name])
+                hint = owner._nearest.get(name, -1)
+                d, pts, owner._nearest[name] = owner._model.query_chunks(owner._static, name, self._T[name], hint)
                 self.queries += 1
                 self._done[name] = (d, pts)
                 owner._last[name] = (np.array(self._T[name], dtype=np.float64), d)
