@@ -39,7 +39,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..typed import ArrayF64
-from .pixels import build_pyramid, push_row, pyramid_layout
+from .pixels import build_pyramid, project_bounds, push_row, pyramid_layout
 
 __all__ = [
     "CameraStack",
@@ -300,25 +300,9 @@ def _carve(
         for i in range(n_cam):
             if i == c or not active[i]:
                 continue
-            zmin = np.inf
-            zmax = -np.inf
-            umin = np.inf
-            umax = -np.inf
-            vmin = np.inf
-            vmax = -np.inf
-            for j in range(8):
-                px = R_cw[i, 0, 0] * verts[j, 0] + R_cw[i, 0, 1] * verts[j, 1] + R_cw[i, 0, 2] * verts[j, 2] + t_cw[i, 0]
-                py = R_cw[i, 1, 0] * verts[j, 0] + R_cw[i, 1, 1] * verts[j, 1] + R_cw[i, 1, 2] * verts[j, 2] + t_cw[i, 1]
-                pz = R_cw[i, 2, 0] * verts[j, 0] + R_cw[i, 2, 1] * verts[j, 1] + R_cw[i, 2, 2] * verts[j, 2] + t_cw[i, 2]
-                zmin = min(zmin, pz)
-                zmax = max(zmax, pz)
-                if pz > 1e-9:
-                    uu = intr[i, 0] * px / pz + intr[i, 2]
-                    vv = intr[i, 1] * py / pz + intr[i, 3]
-                    umin = min(umin, uu)
-                    umax = max(umax, uu)
-                    vmin = min(vmin, vv)
-                    vmax = max(vmax, vv)
+            umin, umax, vmin, vmax, zmin, zmax = project_bounds(
+                verts, R_cw[i], t_cw[i], intr[i, 0], intr[i, 1], intr[i, 2], intr[i, 3], 1e-9
+            )
             if zmax <= near[i]:
                 continue  # before i's near plane: nothing free
             if zmin <= 1e-9:

@@ -619,31 +619,45 @@ def box_rects(
 
 
 @nb.njit(cache=True, nogil=True)
+def project_bounds(points, R, t, fx, fy, cx, cy, z_eps):  # pragma: no cover - compiled
+    """(umin, umax, vmin, vmax, zmin, zmax) of world points (K, 3) in a camera (world ->
+    camera rotation ``R``, translation ``t``): the z range of all, the pixel range of those
+    with z > ``z_eps``."""
+    umin = np.inf
+    umax = -np.inf
+    vmin = np.inf
+    vmax = -np.inf
+    zmin = np.inf
+    zmax = -np.inf
+    for j in range(points.shape[0]):
+        x, y, z = points[j, 0], points[j, 1], points[j, 2]
+        px = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
+        py = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
+        pz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        zmin = min(zmin, pz)
+        zmax = max(zmax, pz)
+        if pz > z_eps:
+            u = fx * px / pz + cx
+            v = fy * py / pz + cy
+            umin = min(umin, u)
+            umax = max(umax, u)
+            vmin = min(vmin, v)
+            vmax = max(vmax, v)
+    return umin, umax, vmin, vmax, zmin, zmax
+
+
+@nb.njit(cache=True, nogil=True)
 def _box_rects(lo, hi, T, fx, fy, cx, cy, z_beyond, c0, c1, r0, r1, rects, zr):  # pragma: no cover - compiled
     k = 0
+    corners = np.empty((8, 3))
+    R = T[:3, :3]
+    t = T[:3, 3]
     for b in range(lo.shape[0]):
-        umin = np.inf
-        umax = -np.inf
-        vmin = np.inf
-        vmax = -np.inf
-        zmin = np.inf
-        zmax = -np.inf
         for m in range(8):
-            x = hi[b, 0] if m & 1 else lo[b, 0]
-            y = hi[b, 1] if m & 2 else lo[b, 1]
-            z = hi[b, 2] if m & 4 else lo[b, 2]
-            px = x * T[0, 0] + y * T[0, 1] + z * T[0, 2] + T[0, 3]
-            py = x * T[1, 0] + y * T[1, 1] + z * T[1, 2] + T[1, 3]
-            pz = x * T[2, 0] + y * T[2, 1] + z * T[2, 2] + T[2, 3]
-            zmin = min(zmin, pz)
-            zmax = max(zmax, pz)
-            if pz > 1e-6:
-                u = fx * px / pz + cx
-                v = fy * py / pz + cy
-                umin = min(umin, u)
-                umax = max(umax, u)
-                vmin = min(vmin, v)
-                vmax = max(vmax, v)
+            corners[m, 0] = hi[b, 0] if m & 1 else lo[b, 0]
+            corners[m, 1] = hi[b, 1] if m & 2 else lo[b, 1]
+            corners[m, 2] = hi[b, 2] if m & 4 else lo[b, 2]
+        umin, umax, vmin, vmax, zmin, zmax = project_bounds(corners, R, t, fx, fy, cx, cy, 1e-6)
         if not (zmax > z_beyond and zmin > 1e-6):
             continue
         pu0 = np.floor(umin + 0.5)
