@@ -147,3 +147,11 @@ def test_triangle_grid_rejects_bad_meshes() -> None:
         TriangleGrid.of(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([[0, 1, 2]]))
     with pytest.raises(GeometryError, match="vertex indices"):
         TriangleGrid.of(np.eye(3), np.array([[0, 1, 3]]))
+
+
+def test_a_box_with_a_non_finite_coordinate_may_meet() -> None:
+    """Nothing is known of such a box: it is taken to meet (the rules then keep its piece)."""
+    grid = TriangleGrid.of(np.eye(3), np.array([[0, 1, 2]]))
+    lo = np.array([[5.0, 5.0, np.nan], [5.0, 5.0, 5.0], [-np.inf, 5.0, 5.0]])
+    hi = np.array([[6.0, 6.0, 6.0], [6.0, 6.0, np.inf], [6.0, 6.0, 6.0]])
+    assert groups_meet_triangles(grid, lo, hi, np.arange(3), 3).tolist() == [True, True, True]

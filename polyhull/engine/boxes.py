@@ -62,9 +62,9 @@ def _groups(lo, hi):  # pragma: no cover - compiled
 
     Sweep and prune: boxes sorted along the sweep axis, each scans the boxes that start
     within its extent along it (the end of the scan by binary search). The scan is
-    branch-free (each candidate's overlap along the two other axes is written as 0 or 1 to
-    a running count, its index kept when it is 1), so it runs at a few candidates per
-    nanosecond; the union-find then joins only the boxes that do overlap.
+    branch-free (each candidate's overlap along the two other axes adds 0 or 1 to a running
+    count, its index kept when it is 1), so it costs about a nanosecond per candidate with
+    no mispredicted branches; the union-find then joins only the boxes that do overlap.
     """
     n = lo.shape[0]
     axis, order = _sweep_axis(lo, hi)
@@ -226,9 +226,10 @@ def _triangle_meets_box(p0, p1, p2, c, h):  # pragma: no cover - compiled
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _cell(x, origin, pitch, n):  # pragma: no cover - compiled
-    """The grid index of coordinate x along an axis, clamped to 0..n-1 (monotone in x)."""
+    """The grid index of coordinate x along an axis, clamped to 0..n-1 (monotone in x;
+    0 for NaN)."""
     k = np.floor((x - origin) / pitch)
-    if k < 0.0:
+    if not k >= 0.0:
         return 0
     if k > n - 1:
         return n - 1
@@ -323,6 +324,9 @@ def _groups_meet(vertices, triangles, tlo, thi, origin, pitch, dims, start, item
         g = groups[i]
         if out[g]:
             continue
+        if not (np.all(np.isfinite(lo[i])) and np.all(np.isfinite(hi[i]))):
+            out[g] = True  # nothing is known of it: it may meet
+            continue
         if _box_meets(vertices, triangles, tlo, thi, origin, pitch, dims, start, items, lo[i], hi[i]):
             out[g] = True
 
@@ -403,8 +407,9 @@ def groups_meet_triangles(
 ) -> np.ndarray:
     """(G,) for each group 0..G-1 of closed boxes [lo, hi] (N, 3) [m], whether some box of
     it meets a triangle of ``grid`` (touching counts; a box holding a triangle whole meets
-    it). Exact up to rounding (a few ulps of the coordinates): grow the boxes by more than
-    that for an answer that never misses a touching triangle.
+    it; a box with a non-finite coordinate is taken to meet). Exact up to rounding (a few
+    ulps of the coordinates): grow the boxes by more than that for an answer that never
+    misses a touching triangle.
 
     Args:
         grid: The triangles.

@@ -80,7 +80,7 @@ __all__ = [
 
 BOX_MEET_TOLERANCE = 1e-9
 """Relative growth of the boxes of :meth:`StaticModel.boxes_meet` beyond their distance:
-1e-9 of the coordinates' magnitude [m] (6e-9 m at 6 m), a million times a float64's
+1e-9 of the coordinates' magnitude [m] (6e-9 m at 6 m), millions of times a float64's
 rounding, so that a box touching the surface is never judged apart from it."""
 
 CONSISTENT_BAND = 1.5
