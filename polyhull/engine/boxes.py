@@ -36,29 +36,27 @@ def _find(parent, i):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _sweep_axis(lo, hi):  # pragma: no cover - compiled
-    """The axis with the fewest candidate pairs (boxes starting within a box's extent along
-    it), and the boxes' order along it.
-
-    Counted as the sum over boxes of how many boxes start before the box ends: the pairs
-    that start before a box starts add the same n (n - 1) / 2 along every axis.
-    """
-    n = lo.shape[0]
-    best, best_count = 0, -1
-    best_order = np.arange(n)
+def _started_before_end(lo_sorted, hi_sorted):  # pragma: no cover - compiled
+    """(3,) per axis, the sum over boxes of how many boxes start (``lo``) at or before the
+    box's end (``hi``), from each axis' sorted starts and sorted ends (3, N), by merging."""
+    n = lo_sorted.shape[1]
+    out = np.zeros(3, dtype=np.int64)
     for a in range(3):
-        order = np.argsort(lo[:, a])
-        keys = lo[order, a]
-        count = np.searchsorted(keys, hi[:, a], side="right").sum()
-        if best_count < 0 or count < best_count:
-            best, best_count, best_order = a, count, order
-    return best, best_order
+        j = 0
+        total = 0
+        for i in range(n):
+            h = hi_sorted[a, i]
+            while j < n and lo_sorted[a, j] <= h:
+                j += 1
+            total += j
+        out[a] = total
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
-def _groups(lo, hi):  # pragma: no cover - compiled
+def _groups(lo, hi, axis, order):  # pragma: no cover - compiled
     """Labels 0..K-1 (in the order of each group's first box) of the connected groups of
-    overlapping boxes.
+    overlapping boxes [lo, hi] (3, N), swept along ``axis`` in ``order``.
 
     Sweep and prune: boxes sorted along the sweep axis, each scans the boxes that start
     within its extent along it (the end of the scan by binary search). The scan is
@@ -66,8 +64,7 @@ def _groups(lo, hi):  # pragma: no cover - compiled
     count, its index kept when it is 1), so it costs about a nanosecond per candidate with
     no mispredicted branches; the union-find then joins only the boxes that do overlap.
     """
-    n = lo.shape[0]
-    axis, order = _sweep_axis(lo, hi)
+    n = lo.shape[1]
     b, c = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
     # structure of arrays, in sweep order: the scan reads four contiguous columns
     lx = np.empty(n)
@@ -78,12 +75,12 @@ def _groups(lo, hi):  # pragma: no cover - compiled
     hx = np.empty(n)
     for k in range(n):
         i = order[k]
-        lx[k] = lo[i, axis]
-        hx[k] = hi[i, axis]
-        ly[k] = lo[i, b]
-        hy[k] = hi[i, b]
-        lz[k] = lo[i, c]
-        hz[k] = hi[i, c]
+        lx[k] = lo[axis, i]
+        hx[k] = hi[axis, i]
+        ly[k] = lo[b, i]
+        hy[k] = hi[b, i]
+        lz[k] = lo[c, i]
+        hz[k] = hi[c, i]
     end = np.searchsorted(lx, hx, side="right")
     parent = np.arange(n)
     hits = np.empty(n, dtype=np.int64)
@@ -124,7 +121,14 @@ def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
     """
     if lo.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
-    return _groups(np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64))
+    lo_t = np.ascontiguousarray(np.asarray(lo, dtype=np.float64).T)  # (3, N)
+    hi_t = np.ascontiguousarray(np.asarray(hi, dtype=np.float64).T)
+    # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
+    # extent along it): per axis, the boxes starting before each box ends (the pairs that
+    # start before a box starts add the same n (n - 1) / 2 on every axis); numpy's sorts
+    # are vectorised, so the sorting stays outside the compiled code
+    axis = int(np.argmin(_started_before_end(np.sort(lo_t, axis=1), np.sort(hi_t, axis=1))))
+    return _groups(lo_t, hi_t, axis, np.argsort(lo_t[axis]))
 
 
 @nb.njit(cache=True, nogil=True)
