@@ -91,8 +91,8 @@ def test_boxes_meet_as_fcl(static: StaticModel) -> None:
     lo, hi = _boxes(static, rng)
     got = static.boxes_meet(lo, hi, 0.0, np.arange(len(lo)), len(lo))
     fcl_yes = _fcl_meets(static, lo, hi)
-    # a box grown by BAND / sqrt(3) holds every point within BAND / sqrt(3) of the box;
-    # apart from the surface, it is farther than that, and every box farther than BAND is
+    # grown by BAND / sqrt(3) on every side, a box reaches at most BAND farther: every box
+    # farther than BAND from the surface (and some nearer) stays apart, and must be said so
     fcl_near = _fcl_meets(static, lo - BAND / np.sqrt(3.0), hi + BAND / np.sqrt(3.0))
     assert not np.any(fcl_yes & ~got), np.nonzero(fcl_yes & ~got)[0]
     far = ~fcl_near
