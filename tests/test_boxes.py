@@ -155,3 +155,15 @@ def test_a_box_with_a_non_finite_coordinate_may_meet() -> None:
     lo = np.array([[5.0, 5.0, np.nan], [5.0, 5.0, 5.0], [-np.inf, 5.0, 5.0]])
     hi = np.array([[6.0, 6.0, 6.0], [6.0, 6.0, np.inf], [6.0, 6.0, 6.0]])
     assert groups_meet_triangles(grid, lo, hi, np.arange(3), 3).tolist() == [True, True, True]
+
+
+def test_bad_shapes_and_groups_are_refused() -> None:
+    """The compiled loops do not check their bounds: the wrappers do, with a clear error."""
+    with pytest.raises(GeometryError, match=r"overlap_groups: expected lo and hi of shape \(N, 3\)"):
+        overlap_groups(np.zeros((4, 3)), np.ones((3, 3)))
+    grid = TriangleGrid.of(np.eye(3), np.array([[0, 1, 2]]))
+    lo, hi = np.zeros((2, 3)), np.ones((2, 3))
+    with pytest.raises(GeometryError, match=r"groups must lie in 0\.\.1"):
+        groups_meet_triangles(grid, lo, hi, np.array([0, 2]), 2)
+    with pytest.raises(GeometryError, match="expected lo, hi"):
+        groups_meet_triangles(grid, lo, hi, np.array([0]), 2)

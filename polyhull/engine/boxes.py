@@ -119,10 +119,14 @@ def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
     Boxes are closed: boxes that only touch overlap. Groups are numbered in the order of
     their first box (box 0 is in group 0).
     """
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape:
+        raise GeometryError(f"overlap_groups: expected lo and hi of shape (N, 3), got {lo.shape} and {hi.shape}")
     if lo.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
-    lo_t = np.ascontiguousarray(np.asarray(lo, dtype=np.float64).T)  # (3, N)
-    hi_t = np.ascontiguousarray(np.asarray(hi, dtype=np.float64).T)
+    lo_t = np.ascontiguousarray(lo.T)  # (3, N)
+    hi_t = np.ascontiguousarray(hi.T)
     # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
     # extent along it): per axis, the boxes starting before each box ends (the pairs that
     # start before a box starts add the same n (n - 1) / 2 on every axis); numpy's sorts
@@ -423,8 +427,17 @@ def groups_meet_triangles(
         n_groups: G.
     """
     out = np.zeros(n_groups, dtype=bool)
+    lo = np.ascontiguousarray(lo, dtype=np.float64)
+    hi = np.ascontiguousarray(hi, dtype=np.float64)
+    groups = np.ascontiguousarray(groups, dtype=np.int64)
+    if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape or groups.shape != lo.shape[:1]:
+        raise GeometryError(
+            f"boxes against triangles: expected lo, hi (N, 3) and groups (N,), got {lo.shape}, {hi.shape}, {groups.shape}"
+        )
     if len(lo) == 0:
         return out
+    if groups.min() < 0 or groups.max() >= n_groups:
+        raise GeometryError(f"boxes against triangles: groups must lie in 0..{n_groups - 1}, got {groups.min()}..{groups.max()}")
     _groups_meet(
         grid.vertices,
         grid.triangles,
@@ -435,9 +448,9 @@ def groups_meet_triangles(
         grid.dims,
         grid.start,
         grid.items,
-        np.ascontiguousarray(lo, dtype=np.float64).reshape(-1, 3),
-        np.ascontiguousarray(hi, dtype=np.float64).reshape(-1, 3),
-        np.ascontiguousarray(groups, dtype=np.int64).reshape(-1),
+        lo,
+        hi,
+        groups,
         out,
     )
     return out
