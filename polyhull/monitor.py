@@ -317,6 +317,7 @@ class Monitor:
 
             references = render_reference(cell)
         self.static = static if static is not None else StaticModel.load_or_build(cell, dict(references))
+        self.static.prepare()
         self._zone = self.static.zone
         self._stack = CameraStack.of(cell.cameras)
         self._carve = carve_params or CarveParams()

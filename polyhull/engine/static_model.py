@@ -590,8 +590,10 @@ class StaticModel:
         sheet_heights: Per sheet, the height map of C_static inside its slab
             (:func:`sheet_heights`): what a sheet box under a kept piece restores.
         touch: Voxels within ``support_eps`` of R3_static.
-        bvh: python-fcl object of R3_static (None when it is empty).
         hull_volume: Volume of C_static [m^3].
+
+    :attr:`bvh`, one python-fcl BVH of all of R3_static, is built when first read (the
+    engine measures against chunks of it: :class:`polyhull.distance.ChunkedMesh`).
     """
 
     cameras: tuple[StaticCamera, ...]
@@ -605,8 +607,14 @@ class StaticModel:
     sheets: tuple[Sheet, ...]
     sheet_heights: tuple[np.ndarray, ...]
     touch: TouchGrid
-    bvh: fcl.CollisionObject | None
     hull_volume: float
+
+    @functools.cached_property
+    def bvh(self) -> fcl.CollisionObject | None:
+        """A python-fcl object of R3_static (None when it is empty), built on first use."""
+        from ..distance import manifold_to_fcl
+
+        return manifold_to_fcl(self.region)
 
     @classmethod
     def load_or_build(
@@ -665,8 +673,6 @@ class StaticModel:
 
     @classmethod
     def _load(cls, cell: Cell, references: dict[str, np.ndarray], path: Path) -> StaticModel:
-        from ..distance import manifold_to_fcl
-
         with np.load(path, allow_pickle=False) as data:
             block = cell.reconstruction.block
             cams = tuple(
@@ -701,14 +707,12 @@ class StaticModel:
             sheets=sheets,
             sheet_heights=heights,
             touch=touch,
-            bvh=manifold_to_fcl(mf["region"]),
             hull_volume=hull_volume,
         )
 
     @classmethod
     def build(cls, cell: Cell, references: dict[str, np.ndarray]) -> StaticModel:
         """Precompute the static model of ``cell`` from the references (H, W) [m]."""
-        from ..distance import manifold_to_fcl
         from ..errors import PolyhullError
 
         block = cell.reconstruction.block
@@ -758,7 +762,6 @@ class StaticModel:
             sheets=sheets,
             sheet_heights=heights,
             touch=touch,
-            bvh=manifold_to_fcl(region),
             hull_volume=float(hull.volume()),
         )
 
@@ -796,6 +799,11 @@ class StaticModel:
         scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
         grow = (distance + BOX_MEET_TOLERANCE * (1.0 + scale))[:, None]
         return groups_meet_triangles(grid, lo - grow, hi + grow, groups, n_groups)
+
+    def prepare(self) -> None:
+        """Build now what the cycles would build on first use (the triangle grid of
+        :meth:`boxes_meet`), so that no cycle pays for it."""
+        _ = self._triangle_grid
 
     @functools.cached_property
     def _triangle_grid(self) -> TriangleGrid | None:
