@@ -643,24 +643,27 @@ class Monitor:
         raster_bufs, raster_lease = self._raster_pool.take()
         free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
 
+        # each camera's robot raster, then its pixels, on the pool's threads (one task a
+        # camera: no wait for the other cameras' rasters); the raster stage's time runs
+        # until the last raster is done, the pixel stage's from then on
         t0 = time.perf_counter()
-        rasters: dict[str, RobotRaster] = {}
-        if padded_world:
-            done = self._pool.map(
-                lambda cam: rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name]),  # type: ignore[arg-type]
-                cell.cameras,
-            )
-            rasters = {cam.name: r for cam, r in zip(cell.cameras, done, strict=True)}
-        timings["robot_raster"] = (time.perf_counter() - t0) * 1e3
+        raster_done = [t0] * len(cell.cameras)
 
-        # pixels: every camera in one compiled pass, on the pool's threads
-        t0 = time.perf_counter()
-        results = list(
-            self._pool.map(
-                lambda i: self._camera_pixels(i, usable, rasters, free_stack, end_stack, pyramids),
-                range(len(cell.cameras)),
-            )
-        )
+        def camera(i: int) -> tuple[RobotRaster | None, _CameraPixels]:
+            cam = cell.cameras[i]
+            raster = None
+            if padded_world:
+                raster = rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name])  # type: ignore[arg-type]
+            raster_done[i] = time.perf_counter()
+            return raster, self._camera_pixels(i, usable, raster, free_stack, end_stack, pyramids)
+
+        done = list(self._pool.map(camera, range(len(cell.cameras))))
+        rasters: dict[str, RobotRaster] = {
+            cam.name: r for cam, (r, _) in zip(cell.cameras, done, strict=True) if r is not None
+        }
+        results = [p for _, p in done]
+        t1 = max(raster_done)
+        timings["robot_raster"] = (t1 - t0) * 1e3
         free_imgs: list[np.ndarray | None] = [free_stack.image(i) for i in range(len(cell.cameras))]
         end_imgs: list[np.ndarray | None] = [end_stack.image(i) for i in range(len(cell.cameras))]
         active = np.array([r.active for r in results], dtype=bool)
@@ -687,7 +690,7 @@ class Monitor:
                     f"camera '{cam.name}': moved or miscalibrated: {r.far_side_share:.1%} "
                     f"of the background reads beyond the reference (> {safety.background_mismatch:.1%})"
                 )
-        timings["pixels"] = (time.perf_counter() - t0) * 1e3
+        timings["pixels"] = (time.perf_counter() - t1) * 1e3
         if not active.all():
             # A camera without a usable frame frees nothing, so its whole image would become
             # pieces (thousands: ~1.5 s of geometry). Its fault latches and stops the robot,
@@ -893,7 +896,7 @@ class Monitor:
         self,
         i: int,
         usable: Mapping[str, np.ndarray],
-        rasters: Mapping[str, RobotRaster],
+        raster: RobotRaster | None,
         free_stack: ImageStack,
         end_stack: ImageStack,
         pyramids: PyramidStack,
@@ -903,7 +906,6 @@ class Monitor:
         cell = self.cell
         cam, s = cell.cameras[i], self.static.cameras[i]
         depth = usable.get(cam.name)
-        raster = rasters.get(cam.name)
         if raster is None:
             shadow = self._inf_img[cam.name]
             covered = self._no_robot[cam.name]
