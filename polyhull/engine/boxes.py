@@ -137,21 +137,37 @@ def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
 
 @nb.njit(cache=True, nogil=True)
 def _any(qlo, qhi, blo, bhi, order, keys, extent, out):  # pragma: no cover - compiled
+    """Boxes sorted by their x minimum (``keys``): a query's candidates start within
+    ``extent`` before it. The boxes starting inside the query's x range (which meet it
+    along x) are tested first, then those before it, nearest first: hits come early."""
+    n = order.shape[0]
     for i in range(qlo.shape[0]):
-        start = np.searchsorted(keys, qlo[i, 0] - extent, side="left")
-        for a in range(start, order.shape[0]):
+        mid = np.searchsorted(keys, qlo[i, 0], side="left")
+        hit = False
+        for a in range(mid, n):
             if keys[a] > qhi[i, 0]:
                 break
             j = order[a]
-            if (
-                bhi[j, 0] >= qlo[i, 0]
-                and blo[j, 1] <= qhi[i, 1]
-                and bhi[j, 1] >= qlo[i, 1]
-                and blo[j, 2] <= qhi[i, 2]
-                and bhi[j, 2] >= qlo[i, 2]
-            ):
-                out[i] = True
+            if blo[j, 1] <= qhi[i, 1] and bhi[j, 1] >= qlo[i, 1] and blo[j, 2] <= qhi[i, 2] and bhi[j, 2] >= qlo[i, 2]:
+                hit = True
                 break
+        if not hit:
+            lim = qlo[i, 0] - extent
+            for a in range(mid - 1, -1, -1):
+                if keys[a] < lim:
+                    break
+                j = order[a]
+                if (
+                    bhi[j, 0] >= qlo[i, 0]
+                    and blo[j, 1] <= qhi[i, 1]
+                    and bhi[j, 1] >= qlo[i, 1]
+                    and blo[j, 2] <= qhi[i, 2]
+                    and bhi[j, 2] >= qlo[i, 2]
+                ):
+                    hit = True
+                    break
+        if hit:
+            out[i] = True
 
 
 def any_overlap(qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> np.ndarray:
