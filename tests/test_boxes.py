@@ -167,3 +167,20 @@ def test_bad_shapes_and_groups_are_refused() -> None:
         groups_meet_triangles(grid, lo, hi, np.array([0, 2]), 2)
     with pytest.raises(GeometryError, match="expected lo, hi"):
         groups_meet_triangles(grid, lo, hi, np.array([0]), 2)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 60), st.integers(0, 16))
+def test_near_balls_equals_numpy(seed: int, n: int, b: int) -> None:
+    """The dynamic rules' "near the robot" test (a box's ball within eps of a robot ball),
+    compiled, against the same formula in numpy."""
+    from polyhull.engine.dynamic_rules import _near_balls
+
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1, 1, (n, 3))
+    hi = lo + rng.uniform(0, 0.5, (n, 3))
+    balls = np.column_stack([rng.uniform(-1, 1, (b, 3)), rng.uniform(0, 0.3, b)])
+    c, r = 0.5 * (lo + hi), 0.5 * np.linalg.norm(hi - lo, axis=1)
+    gap = np.linalg.norm(c[:, None, :] - balls[None, :, :3], axis=2) - balls[None, :, 3] - r[:, None]
+    want = (gap <= 0.05).any(axis=1) if b else np.zeros(n, dtype=bool)
+    np.testing.assert_array_equal(_near_balls(lo, hi, balls, 0.05), want)

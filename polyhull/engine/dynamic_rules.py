@@ -415,6 +415,25 @@ def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: 
     return cut
 
 
+@nb.njit(cache=True, nogil=True)
+def _near_balls(lo, hi, balls, eps):  # pragma: no cover - compiled
+    """(N,) whether each box [lo, hi]'s ball (centre, half diagonal) comes within ``eps`` of
+    one of the balls (B, 4): centre, radius."""
+    out = np.zeros(lo.shape[0], dtype=np.bool_)
+    for i in range(lo.shape[0]):
+        cx = 0.5 * (lo[i, 0] + hi[i, 0])
+        cy = 0.5 * (lo[i, 1] + hi[i, 1])
+        cz = 0.5 * (lo[i, 2] + hi[i, 2])
+        dx, dy, dz = hi[i, 0] - lo[i, 0], hi[i, 1] - lo[i, 1], hi[i, 2] - lo[i, 2]
+        r = 0.5 * np.sqrt(dx * dx + dy * dy + dz * dz)
+        for b in range(balls.shape[0]):
+            ex, ey, ez = cx - balls[b, 0], cy - balls[b, 1], cz - balls[b, 2]
+            if np.sqrt(ex * ex + ey * ey + ez * ez) - balls[b, 3] - r <= eps:
+                out[i] = True
+                break
+    return out
+
+
 def judge_dynamic(
     vertices: ArrayF64,
     volumes: ArrayF64,
@@ -452,11 +471,7 @@ def judge_dynamic(
     touch_m = np.zeros(K, dtype=bool)
     near_robot = at_robot.copy()
     if len(ctx.robot_spheres):
-        s = ctx.robot_spheres
-        c = 0.5 * (lo + hi)
-        r = 0.5 * np.linalg.norm(hi - lo, axis=1)
-        gap = np.linalg.norm(c[:, None, :] - s[None, :, :3], axis=2) - s[None, :, 3] - r[:, None]
-        near_robot |= (gap <= eps).any(axis=1)
+        near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
     np.logical_or.at(touch_m, labels, near_robot)
     entry: np.ndarray = np.zeros(K, dtype=bool)
     if len(ctx.entry_lo):
