@@ -141,3 +141,26 @@ def test_unchanged_pieces_settle_and_a_real_crossing_keeps_its_sheet() -> None:
 
 def test_settled_flag_value() -> None:
     assert SETTLED & OWN == 0
+
+
+def test_same_rows_against_a_set() -> None:
+    """Which rows of one box array are rows of another: the compiled search against a set
+    of tuples (ties, -0.0, repeated rows, empty arrays)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.engine.refine import _same_rows
+
+    @settings(max_examples=60, deadline=None)
+    @given(st.integers(0, 2**31 - 1), st.integers(0, 40), st.integers(0, 40))
+    def check(seed: int, n: int, m: int) -> None:
+        rng = np.random.default_rng(seed)
+        b = rng.integers(0, 3, size=(m, 7)).astype(float)
+        a = rng.integers(0, 3, size=(n, 7)).astype(float)
+        if m and n:
+            a[: n // 2] = b[rng.integers(0, m, n // 2)]  # some shared rows
+            a[a == 0.0] = -0.0
+        rows = {tuple(r) for r in b}
+        np.testing.assert_array_equal(_same_rows(a, b), np.array([tuple(r) in rows for r in a], dtype=bool).reshape(-1))
+
+    check()

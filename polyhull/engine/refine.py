@@ -132,11 +132,40 @@ size budget): not carved again this cycle."""
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(len(a),) whether each row of ``a`` (N, 7) is a row of ``b`` (M, 7)."""
+    """(len(a),) whether each row of ``a`` (N, K) is a row of ``b`` (M, K) (equal values;
+    ``b`` sorted once, each row of ``a`` found by binary search)."""
+    out = np.zeros(len(a), dtype=bool)
     if len(a) == 0 or len(b) == 0:
-        return np.zeros(len(a), dtype=bool)
-    row = np.dtype((np.void, a.dtype.itemsize * a.shape[1]))
-    return np.isin(np.ascontiguousarray(a).view(row).ravel(), np.ascontiguousarray(b).view(row).ravel())
+        return out
+    b = np.ascontiguousarray(b, dtype=np.float64)
+    b = b[np.lexsort(b.T[::-1])]
+    _rows_in(np.ascontiguousarray(a, dtype=np.float64), b, out)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _rows_in(a, b, out):  # pragma: no cover - compiled
+    K = a.shape[1]
+    for i in range(a.shape[0]):
+        lo, hi = 0, b.shape[0]
+        while lo < hi:  # the first row of b not below a[i] (lexicographic order)
+            mid = (lo + hi) // 2
+            below = False
+            for k in range(K):
+                if b[mid, k] != a[i, k]:
+                    below = b[mid, k] < a[i, k]
+                    break
+            if below:
+                lo = mid + 1
+            else:
+                hi = mid
+        if lo < b.shape[0]:
+            same = True
+            for k in range(K):
+                if b[lo, k] != a[i, k]:
+                    same = False
+                    break
+            out[i] = same
 
 
 class Refined(NamedTuple):
