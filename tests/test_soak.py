@@ -60,7 +60,8 @@ def test_heap_reader_sees_a_block_allocated_and_freed() -> None:
     libc.malloc.restype = ctypes.c_void_p
     libc.malloc.argtypes = [ctypes.c_size_t]
     libc.free.argtypes = [ctypes.c_void_p]
-    size = 8 * 1024 * 1024  # above the mmap threshold: counted whole, in use and held
+    # above glibc's largest mmap threshold (32 MB): a block of its own, in use and held
+    size = 64 * 1024 * 1024
     before = heap()
     block = libc.malloc(size)
     assert block
