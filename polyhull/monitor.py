@@ -37,7 +37,13 @@ import numpy as np
 from scipy.spatial import ConvexHull
 
 from .cell import Cell
-from .distance import DistanceResult, RobotDistanceModel, StaticDistance, winding_numbers
+from .distance import (
+    ChunkedMesh,
+    DistanceResult,
+    RobotDistanceModel,
+    StaticDistance,
+    winding_numbers,
+)
 from .engine.boxes import any_overlap
 from .engine.dynamic_rules import (
     DynamicContext,
@@ -57,8 +63,10 @@ from .engine.pieces import (
     carve,
     piece_vertices,
     piece_volumes,
+    vertex_bounds,
 )
 from .engine.pixels import (
+    box_rects,
     classify_frame,
     memory_segments,
     small_gap_pixels,
@@ -358,7 +366,7 @@ class Monitor:
             self._shell_planes = _shell_planes(self._padded, cell.plausibility.shell_thickness)
             self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
             self._static_distance: StaticDistance | None = StaticDistance(
-                self._distance_model, self.static.bvh, self._static_contains
+                self._distance_model, ChunkedMesh.of_manifold(self.static.region), self._static_contains
             )
         else:
             self._static_distance = None
@@ -679,14 +687,18 @@ class Monitor:
                     f"of the background reads beyond the reference (> {safety.background_mismatch:.1%})"
                 )
         timings["pixels"] = (time.perf_counter() - t0) * 1e3
+        if not active.all():
+            # A camera without a usable frame frees nothing, so its whole image would become
+            # pieces (thousands: ~1.5 s of geometry). Its fault latches and stops the robot,
+            # so the verdict is a stop now, with the whole zone as its region (a superset).
+            self.last_images = None
+            return self._stop_verdict(t, qv, faults, warnings, timings, t_start)
         initial = np.concatenate(init_parts) if init_parts else np.zeros((0, 7))
         zlo = np.asarray(cell.zone.min, dtype=np.float64)
         zhi = np.asarray(cell.zone.max, dtype=np.float64)
         k = cell.reconstruction.k_of_n
 
-        # A camera without a usable frame frees nothing: its whole image becomes pieces. That
-        # cycle stops the robot anyway (the fault latches), so its pieces are not split.
-        params = self._carve if active.all() else replace(self._carve, size_min=math.inf, size_max=math.inf)
+        params = self._carve
         pyramid_stack = pyramids.only(active)
 
         # The distance is decided near the frontier (about last cycle's distance): pieces
@@ -707,8 +719,11 @@ class Monitor:
             p = params
             if coarse:
                 p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
-                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p)
-            return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top)
+                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, pool=self._pool)
+            return carve(
+                init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top,
+                pool=self._pool,
+            )
 
         pieces, overflow = self._timed(timings, "pieces", lambda: run_carve(initial, free_stack, end_stack))
         if overflow:
@@ -770,7 +785,7 @@ class Monitor:
         def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
             p = replace(params, size_min=size_min, alpha=alpha)
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
-            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset)[0]
+            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
             if self._distance_model is None or static_now is None:
@@ -787,8 +802,8 @@ class Monitor:
             margin=cell.plausibility.floor_shell_margin,
             too_thin=cell.plausibility.too_thin,
         )
-        # no robot, or a camera without a frame (the cycle stops anyway): no refinement
-        no_refine = self._distance_model is None or not active.all()
+        # no robot: no refinement
+        no_refine = self._distance_model is None
         refined = self._timed(
             timings,
             "distance",
@@ -807,9 +822,9 @@ class Monitor:
         # history for the next cycle: the kept dynamic pieces' boxes (not the sheet boxes,
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
-        self._prev_lo, self._prev_hi = observed.min(axis=1), observed.max(axis=1)
+        self._prev_lo, self._prev_hi = vertex_bounds(observed)
         seeds = _seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
-        self._seed_lo, self._seed_hi = seeds.min(axis=1), seeds.max(axis=1)
+        self._seed_lo, self._seed_hi = vertex_bounds(seeds)
         self._prev_stamp = t
         self._prev_distance = float(dist.distance)
         self.last_images = CycleImages(
@@ -899,12 +914,15 @@ class Monitor:
             s.reference, s.lower, s.upper, s.free_static, shadow,
             near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
             is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
+            tile=cell.reconstruction.tile,
+            shadow_rect=(0, -1, 0, -1) if raster is None or raster.rect is None else raster.rect,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
             vu = small_gap_pixels(
                 cls.free, cls.end, cls.invalid, s.free_static, cam.near,
                 cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
+                tiles=(cell.reconstruction.tile, cls.tiles),
             )
             if len(vu):
                 v_idx, u_idx = vu[:, 0], vu[:, 1]
@@ -913,10 +931,11 @@ class Monitor:
                 )
                 cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
         if depth is not None:
-            pyramids.build_camera(i, cls.free)
+            pyramids.build_camera(i)
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
+            tiles=cls.tiles,
         )
         if len(tiles):
             tiles = np.column_stack([np.full(len(tiles), float(i)), tiles])
@@ -972,10 +991,6 @@ class Monitor:
             self._mem_rects = [None] * len(self.cell.cameras)
         mem_free, mem_end = self._mem_stacks
         tile = self.cell.reconstruction.tile
-        corners = np.stack(
-            [np.stack([np.where(m & 1, hi[:, 0], lo[:, 0]), np.where(m & 2, hi[:, 1], lo[:, 1]), np.where(m & 4, hi[:, 2], lo[:, 2])], axis=1) for m in range(8)],
-            axis=1,
-        )  # (B, 8, 3)
         for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
             raster = rasters.get(cam.name)
             free = free_imgs[i]
@@ -991,25 +1006,13 @@ class Monitor:
             rows = v0 + np.nonzero(raster.covered[win].any(axis=1))[0]
             cols = u0 + np.nonzero(raster.covered[win].any(axis=0))[0]
             s_min = float(raster.back[win][raster.covered[win]].min())
-            uv, z = cam.project(corners.reshape(-1, 3))
-            uv = uv.reshape(-1, 8, 2)
-            z = z.reshape(-1, 8)
-            ok = (z.max(axis=1) > max(cam.near, s_min)) & (z.min(axis=1) > 1e-6)
-            with np.errstate(invalid="ignore"):
-                pu0 = np.floor(uv[:, :, 0].min(axis=1) + 0.5)
-                pu1 = np.floor(uv[:, :, 0].max(axis=1) + 0.5)
-                pv0 = np.floor(uv[:, :, 1].min(axis=1) + 0.5)
-                pv1 = np.floor(uv[:, :, 1].max(axis=1) + 0.5)
-            ok &= (pu1 >= cols[0]) & (pu0 <= cols[-1]) & (pv1 >= rows[0]) & (pv0 <= rows[-1])
-            sel = np.nonzero(ok)[0]
-            # only the robot's bounding rectangle can hold covered pixels
-            rects = np.column_stack(
-                [
-                    np.maximum(pu0[sel], cols[0]), np.minimum(pu1[sel], cols[-1]),
-                    np.maximum(pv0[sel], rows[0]), np.minimum(pv1[sel], rows[-1]),
-                ]
-            ).astype(np.int64)
-            zr = np.column_stack([z[sel].min(axis=1), z[sel].max(axis=1)])
+            # the grown seed boxes behind the robot's nearest back depth, as pixel
+            # rectangles within the rows and columns holding covered pixels
+            k = cam.intrinsics
+            rects, zr = box_rects(
+                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, s_min),
+                (int(cols[0]), int(cols[-1]), int(rows[0]), int(rows[-1])),
+            )
             # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
             H, W = cam.shape
             tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile
@@ -1030,7 +1033,7 @@ class Monitor:
         pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
         if not len(pieces):
             return pieces
-        return pieces.select(any_overlap(pieces.vertices.min(axis=1), pieces.vertices.max(axis=1), lo, hi))
+        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), lo, hi))
 
     def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""
@@ -1094,7 +1097,7 @@ def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: Came
 def _pieces_removed(rule: str, pieces: PieceSet, stack: CameraStack) -> RemovedComponent:
     """One removed component made of ``pieces`` (its mesh built when read)."""
     vols = piece_volumes(pieces.boxes, stack)
-    centres = 0.5 * (pieces.vertices.min(axis=1) + pieces.vertices.max(axis=1))
+    centres = 0.5 * np.add(*vertex_bounds(pieces.vertices))
     centroid = (centres * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
     return RemovedComponent(rule, float(vols.sum()), centroid, LazyMesh(_hexahedra_manifold, pieces.vertices))
 

@@ -1,14 +1,18 @@
-"""Box overlaps by sweep and prune (polyhull.engine.boxes) against brute force."""
+"""Box queries (polyhull.engine.boxes) against brute force: box overlaps by sweep and prune,
+and boxes against triangles (python-fcl's box-against-mesh collision as the oracle)."""
 
 from __future__ import annotations
 
+import fcl
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from polyhull.engine.boxes import any_overlap, overlap_groups
+from polyhull.engine.boxes import TriangleGrid, any_overlap, groups_meet_triangles, overlap_groups
+from polyhull.errors import GeometryError
 
 
 def _random_boxes(seed: int, n: int, spread: float) -> tuple[np.ndarray, np.ndarray]:
@@ -22,22 +26,144 @@ def _meets(alo: np.ndarray, ahi: np.ndarray, blo: np.ndarray, bhi: np.ndarray) -
     return np.all((alo[:, None, :] <= bhi[None]) & (ahi[:, None, :] >= blo[None]), axis=2)
 
 
-@settings(max_examples=40)
-@given(seed=st.integers(0, 10_000), n=st.integers(1, 120), spread=st.floats(0.1, 3.0))
-def test_groups_are_the_connected_components_of_overlap(seed: int, n: int, spread: float) -> None:
-    lo, hi = _random_boxes(seed, n, spread)
+def _lattice_boxes(seed: int, n: int, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes with corners on a coarse lattice: many exactly touching faces and equal
+    coordinates (ties in every sort), some flat (zero extent along an axis)."""
+    rng = np.random.default_rng(seed)
+    lo = rng.integers(0, cells, size=(n, 3)).astype(np.float64) * 0.1
+    return lo, lo + rng.integers(0, 3, size=(n, 3)) * 0.1
+
+
+def _assert_same_groups(lo: np.ndarray, hi: np.ndarray) -> None:
     labels = overlap_groups(lo, hi)
     _, expected = connected_components(csr_matrix(_meets(lo, hi, lo, hi)), directed=False)
     # the same partition: labels map one-to-one
     pairs = set(zip(labels.tolist(), expected.tolist(), strict=True))
     assert len(pairs) == len(set(labels.tolist())) == len(set(expected.tolist()))
-    assert labels.min() == 0 and labels.max() == len(set(labels.tolist())) - 1
+    # numbered 0..K-1 in the order of each group's first box
+    _, first = np.unique(labels, return_index=True)
+    assert np.array_equal(labels[np.sort(first)], np.arange(len(first)))
 
 
-@settings(max_examples=40)
+@settings(max_examples=40, deadline=None)  # the first example may compile
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 120), spread=st.floats(0.1, 3.0))
+def test_groups_are_the_connected_components_of_overlap(seed: int, n: int, spread: float) -> None:
+    _assert_same_groups(*_random_boxes(seed, n, spread))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 150), cells=st.integers(2, 12), flat=st.integers(-1, 2))
+def test_touching_boxes_group_like_brute_force(seed: int, n: int, cells: int, flat: int) -> None:
+    """Closed boxes: touching faces, edges and corners join groups, also on the sweep axis."""
+    lo, hi = _lattice_boxes(seed, n, cells)
+    if flat >= 0:  # all in one plane: the sweep axis is then another one
+        lo[:, flat] = hi[:, flat] = 0.0
+    _assert_same_groups(lo, hi)
+
+
+def test_groups_of_no_box_and_of_one_box() -> None:
+    assert overlap_groups(np.zeros((0, 3)), np.zeros((0, 3))).tolist() == []
+    assert overlap_groups(np.zeros((1, 3)), np.ones((1, 3))).tolist() == [0]
+
+
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), n=st.integers(1, 80), m=st.integers(0, 80))
 def test_any_overlap_is_brute_force(seed: int, n: int, m: int) -> None:
     qlo, qhi = _random_boxes(seed, n, 2.0)
     blo, bhi = _random_boxes(seed + 1, m, 2.0)
     expected = _meets(qlo, qhi, blo, bhi).any(axis=1) if m else np.zeros(n, dtype=bool)
     assert np.array_equal(any_overlap(qlo, qhi, blo, bhi), expected)
+
+
+def _fcl_meets(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(N,) python-fcl: whether each solid box [lo, hi] collides with the triangles."""
+    model = fcl.BVHModel()
+    model.beginModel(len(vertices), len(triangles))
+    model.addSubModel(vertices, triangles)
+    model.endModel()
+    mesh = fcl.CollisionObject(model, fcl.Transform())
+    out = np.zeros(len(lo), dtype=bool)
+    for i in range(len(lo)):
+        box = fcl.CollisionObject(fcl.Box(*(hi[i] - lo[i])), fcl.Transform(0.5 * (lo[i] + hi[i])))
+        out[i] = fcl.collide(box, mesh, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), degenerate=st.booleans())
+def test_boxes_meet_triangles_as_fcl(seed: int, degenerate: bool) -> None:
+    """Random triangles (some long, crossing many cells; some collinear) against random
+    boxes: the same answer as python-fcl, except within a 1e-6 band where either may be
+    said (a box touching the surface, which the caller grows for)."""
+    rng = np.random.default_rng(seed)
+    n_tri = 30
+    centres = rng.uniform(0.0, 2.0, size=(n_tri, 1, 3))
+    scale = rng.choice([0.02, 0.2, 1.5], size=(n_tri, 1, 1))
+    corners = centres + rng.normal(0.0, 1.0, size=(n_tri, 3, 3)) * scale
+    if degenerate:  # a third of them collinear: the third corner between the other two
+        corners[::3, 2] = 0.3 * corners[::3, 0] + 0.7 * corners[::3, 1]
+    vertices = corners.reshape(-1, 3)
+    triangles = np.arange(3 * n_tri).reshape(-1, 3)
+    grid = TriangleGrid.of(vertices, triangles, pitch=0.1)
+    lo = rng.uniform(-0.5, 2.5, size=(200, 3))
+    hi = lo + rng.exponential(0.15, size=(200, 3))
+    got = groups_meet_triangles(grid, lo, hi, np.arange(200), 200)
+    fcl_yes = _fcl_meets(vertices, triangles, lo, hi)
+    fcl_near = _fcl_meets(vertices, triangles, lo - 1e-6, hi + 1e-6)
+    assert not np.any(fcl_yes & ~fcl_near)
+    sure = fcl_yes | ~fcl_near
+    assert np.array_equal(got[sure], fcl_yes[sure])
+    assert 0 < fcl_yes.sum() < len(lo)  # both answers were tested
+
+
+def test_boxes_meet_triangles_touching_and_holding() -> None:
+    """A box that only touches a triangle (at a vertex, along an edge, on a face) meets it,
+    and so does a box that holds it whole; a box a hair away does not."""
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    grid = TriangleGrid.of(v, np.array([[0, 1, 2]]))
+    lo = np.array(
+        [
+            [1.0, -0.5, -0.5],  # the vertex (1, 0, 0) on its face
+            [0.5, 0.5, -0.5],  # the hypotenuse edge through its corner (0.5, 0.5)
+            [0.1, 0.1, 0.0],  # the face, from above
+            [-1.0, -1.0, -1.0],  # the whole triangle inside
+            [1.0 + 1e-7, -0.5, -0.5],  # beyond the vertex
+            [0.2, 0.2, 1e-7],  # above the face
+        ]
+    )
+    hi = lo + np.array([[1.0, 1.0, 1.0]] * 3 + [[3.0, 3.0, 3.0]] + [[1.0, 1.0, 1.0]] * 2)
+    got = groups_meet_triangles(grid, lo, hi, np.arange(6), 6)
+    assert got.tolist() == [True, True, True, True, False, False]
+    # python-fcl finds the same, except the touch along the edge (rounding puts it apart)
+    assert _fcl_meets(v, np.array([[0, 1, 2]]), lo, hi).tolist() == [True, False, True, True, False, False]
+    # groups: a group meets when one of its boxes does
+    assert groups_meet_triangles(grid, lo, hi, np.array([0, 1, 1, 1, 2, 2]), 3).tolist() == [True, True, False]
+
+
+def test_triangle_grid_rejects_bad_meshes() -> None:
+    with pytest.raises(GeometryError, match="triangle grid"):
+        TriangleGrid.of(np.zeros((3, 3)), np.zeros((0, 3), dtype=np.int64))
+    with pytest.raises(GeometryError, match="non-finite"):
+        TriangleGrid.of(np.array([[0.0, 0.0, np.nan], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), np.array([[0, 1, 2]]))
+    with pytest.raises(GeometryError, match="vertex indices"):
+        TriangleGrid.of(np.eye(3), np.array([[0, 1, 3]]))
+
+
+def test_a_box_with_a_non_finite_coordinate_may_meet() -> None:
+    """Nothing is known of such a box: it is taken to meet (the rules then keep its piece)."""
+    grid = TriangleGrid.of(np.eye(3), np.array([[0, 1, 2]]))
+    lo = np.array([[5.0, 5.0, np.nan], [5.0, 5.0, 5.0], [-np.inf, 5.0, 5.0]])
+    hi = np.array([[6.0, 6.0, 6.0], [6.0, 6.0, np.inf], [6.0, 6.0, 6.0]])
+    assert groups_meet_triangles(grid, lo, hi, np.arange(3), 3).tolist() == [True, True, True]
+
+
+def test_bad_shapes_and_groups_are_refused() -> None:
+    """The compiled loops do not check their bounds: the wrappers do, with a clear error."""
+    with pytest.raises(GeometryError, match=r"overlap_groups: expected lo and hi of shape \(N, 3\)"):
+        overlap_groups(np.zeros((4, 3)), np.ones((3, 3)))
+    grid = TriangleGrid.of(np.eye(3), np.array([[0, 1, 2]]))
+    lo, hi = np.zeros((2, 3)), np.ones((2, 3))
+    with pytest.raises(GeometryError, match=r"groups must lie in 0\.\.1"):
+        groups_meet_triangles(grid, lo, hi, np.array([0, 2]), 2)
+    with pytest.raises(GeometryError, match="expected lo, hi"):
+        groups_meet_triangles(grid, lo, hi, np.array([0]), 2)

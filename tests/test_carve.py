@@ -47,3 +47,59 @@ def test_nothing_free_keeps_the_piece_whole() -> None:
     pieces, _ = carve(init, stack, active, PyramidStack.build(free, active), free, end, np.zeros((0, 4)), zlo, zhi, 1, CarveParams())
     assert len(pieces) == 1
     assert np.allclose(pieces.vertices, piece_vertices(init, stack))
+
+
+def test_pyramid_range_bounds_every_box() -> None:
+    """The pyramids' range query (level 0 read from the free image itself) gives, over any
+    pixel box, a min no larger and a max no smaller than the box's own (exact on boxes
+    under 8 px a side), for every camera of a stack of images of different sizes."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.engine.pieces import _range
+
+    cell = load_cell("fixtures/cells/small_cell.toml")
+    stack = CameraStack.of(cell.cameras)
+    free = ImageStack(stack, fill=None)
+    rng = np.random.default_rng(0)
+    for i in range(len(cell.cameras)):
+        free.image(i)[:] = rng.uniform(0.3, 6.0, size=free.shape(i)).astype(np.float32)
+    pyr = PyramidStack.build(free, np.ones(len(cell.cameras), dtype=bool))
+
+    @settings(max_examples=200, deadline=None)
+    @given(st.integers(0, len(cell.cameras) - 1), st.floats(0, 1), st.floats(0, 1), st.floats(0, 1), st.floats(0, 1))
+    def check(i: int, a: float, b: float, c: float, d: float) -> None:
+        H, W = free.shape(i)
+        u0, u1 = sorted((int(a * (W - 1)), int(b * (W - 1))))
+        v0, v1 = sorted((int(c * (H - 1)), int(d * (H - 1))))
+        lo, hi = _range(pyr.mins, pyr.maxs, pyr.image, pyr.offsets[i], pyr.shapes[i], pyr.levels[i], u0, u1, v0, v1)
+        box = free.image(i)[v0 : v1 + 1, u0 : u1 + 1]
+        assert lo <= box.min() and hi >= box.max()
+        if u1 - u0 < 8 and v1 - v0 < 8:
+            assert lo == box.min() and hi == box.max()
+
+    check()
+
+
+def test_carving_on_two_threads_gives_the_same_pieces() -> None:
+    """Carving split over a pool's two threads keeps the same set of pieces as one call."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cell, stack, free, end, active = _setup(3.5)
+    rng = np.random.default_rng(1)
+    img = free.image(1)
+    img[:] = rng.uniform(2.0, 5.0, size=img.shape).astype(np.float32)  # camera 1 frees in patches
+    u0 = rng.integers(0, 150, size=200).astype(float)
+    v0 = rng.integers(0, 110, size=200).astype(float)
+    init = np.column_stack([np.zeros(200), u0, u0 + 7, v0, v0 + 7, np.full(200, 1.0), np.full(200, 5.5)])
+    zlo, zhi = np.asarray(cell.zone.min, float), np.asarray(cell.zone.max, float)
+    pyr = PyramidStack.build(free, active)
+    params = CarveParams(alpha=0.1, size_min=0.05, size_max=0.3)
+    one, _ = carve(init, stack, active, pyr, free, end, np.array([[0.0, 0.0, 1.0, 0.3]]), zlo, zhi, 1, params)
+    with ThreadPoolExecutor(2) as pool:
+        two, _ = carve(init, stack, active, pyr, free, end, np.array([[0.0, 0.0, 1.0, 0.3]]), zlo, zhi, 1, params, pool=pool)
+    assert len(one) > len(init)  # carving split pieces
+    key = lambda b: sorted(map(tuple, b))  # noqa: E731
+    assert key(one.boxes) == key(two.boxes)
+    order = np.lexsort(two.boxes.T[::-1])
+    np.testing.assert_array_equal(two.vertices[order], piece_vertices(two.boxes[order], stack))

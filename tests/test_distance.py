@@ -161,10 +161,13 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     from hypothesis import given, settings
     from hypothesis import strategies as st
 
-    from polyhull.distance import StaticDistance, manifold_to_fcl
+    from polyhull.distance import ChunkedMesh, StaticDistance, manifold_to_fcl
 
     region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
     obj = manifold_to_fcl(region)
+    # small chunks: a link meets several, and the chunked minimum must be the whole one's
+    chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
+    assert chunks is not None and len(chunks) > 4
     lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
     hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
 
@@ -173,7 +176,7 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     def check(seed: int, step: float) -> None:
         rng = np.random.default_rng(seed)
         q = rng.uniform(lo, hi)
-        cache = StaticDistance(model, obj, None)
+        cache = StaticDistance(model, chunks, None)
         for _ in range(12):
             q = np.clip(q + rng.uniform(-step, step, size=q.shape), lo, hi)
             T = robot.link_transforms(q)
@@ -188,7 +191,7 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
 
     check()
     # a slow motion: after the first cycle, only the links near the minimum are measured
-    cache = StaticDistance(model, obj, None)
+    cache = StaticDistance(model, chunks, None)
     q = 0.5 * (lo + hi)
     counts = []
     for k in range(20):
@@ -197,3 +200,36 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
         counts.append(cycle.queries)
     assert counts[0] == len(model.link_names)
     assert sum(counts[1:]) <= 19 * 2, counts
+
+
+def test_pruned_piece_distance_equals_all_pieces(robot: Robot, model: RobotDistanceModel) -> None:
+    """Many pieces: measuring only those whose lower bound (link ball, link box) can beat
+    the best so far, in batches nearest first, gives FCL's distance to all of them."""
+    import fcl
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.distance import _bvh, hexahedra_triangles
+
+    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+
+    @settings(max_examples=20, deadline=None)
+    @given(st.integers(0, 2**31 - 1), st.integers(9, 200))
+    def check(seed: int, n: int) -> None:
+        rng = np.random.default_rng(seed)
+        T = robot.link_transforms(rng.uniform(lo_q, hi_q))
+        # around the robot, mostly beyond its reach (a few may touch it)
+        r, a = rng.uniform(0.6, 2.5, n), rng.uniform(0.0, 2.0 * np.pi, n)
+        lo = np.column_stack([r * np.cos(a), r * np.sin(a), rng.uniform(0.0, 2.0, n)])
+        pieces = _hexahedra(lo, lo + rng.uniform(0.01, 0.3, size=(n, 3)))
+        got = model.distance(T, pieces=pieces)
+        verts, tris = hexahedra_triangles(pieces)
+        whole = fcl.CollisionObject(_bvh(verts, tris), fcl.Transform())
+        want = min(model._query(whole, name, T[name])[0] for name in model.link_names)
+        if want <= 0.0:
+            assert got.distance == 0.0
+        else:
+            assert got.distance == pytest.approx(want, abs=1e-9)
+
+    check()

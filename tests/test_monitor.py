@@ -151,6 +151,25 @@ def test_out_of_order_frame(fresh_monitor: Monitor) -> None:
     _assert_latches_then_resets(m, 5.0, "out of order")
 
 
+def test_camera_without_frame_stops_at_once(fresh_monitor: Monitor) -> None:
+    """A camera without a usable frame frees nothing: the cycle is a stop verdict naming it,
+    its region the whole zone (a superset of what that camera's blindness leaves), with no
+    pieces built; the other cameras' pixel faults are still listed."""
+    m = fresh_monitor
+    frames = _clean(m, 1.0)
+    other = m.statics[1].camera.name
+    frames[other] = DepthFrame(camera=other, depth=np.zeros_like(frames[other].depth), stamp=1.0)  # blind
+    del frames[_first(m)]
+    v = m.step(frames, _q(m), stamp=1.0)
+    _assert_fault(v, _first(m), "missing")
+    _assert_fault(v, other, "blind")
+    assert v.min_distance == 0.0
+    assert v.counts == {}
+    assert v.region.volume() == pytest.approx(m.cell.zone.volume, rel=1e-9)
+    assert "pieces" not in v.timings and "pixels" in v.timings
+    assert m.last_images is None
+
+
 def test_stale_joint_state(fresh_monitor: Monitor) -> None:
     m = fresh_monitor
     v = m.step(_clean(m, 1.0), _q(m), stamp=1.0, q_stamp=0.5)

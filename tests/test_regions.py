@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from polyhull.engine.pixels import classify_frame
+from polyhull.engine.pixels import classify_frame, small_gap_pixels, tile_segments
 from polyhull.engine.static_model import StaticCamera
 from polyhull.regions import (
     _pixel_corner_min,
@@ -131,6 +131,20 @@ def test_engine_free_depth_never_above_exact(seed: int, kind: str, special: list
     # every pixel either frees its static free depth or has a segment up to it
     seg = cls.free < cls.end
     assert np.all(seg | (cls.free >= static.free_static))
+    # the tile flags (8 px) are exactly the tiles with a segment pixel; the passes that
+    # visit only those tiles give what visiting every tile gives
+    pad = np.zeros((32, 40), dtype=bool)
+    pad[:30] = seg
+    np.testing.assert_array_equal(cls.tiles, pad.reshape(4, 8, 5, 8).any(axis=(1, 3)))
+    covered = np.zeros(cam.shape, dtype=bool)
+    covered[::7, ::5] = True
+    np.testing.assert_array_equal(
+        tile_segments(cls.free, cls.end, covered, 8, tiles=cls.tiles), tile_segments(cls.free, cls.end, covered, 8)
+    )
+    invalid = ~np.isfinite(D) | (D <= 0)
+    gaps = (cls.free, cls.end, invalid, static.free_static, cam.near, 30.0, 30.0, 0.5)
+    got, full = small_gap_pixels(*gaps, tiles=(8, cls.tiles)), small_gap_pixels(*gaps)
+    assert sorted(map(tuple, got)) == sorted(map(tuple, full))
 
 
 def test_clean_frame_has_no_segment_and_a_person_has_one() -> None:
@@ -161,6 +175,15 @@ def test_robot_shadow_explains_pixels_behind_its_start() -> None:
     assert not np.any(cls.free[5:10, 5:15] < cls.end[5:10, 5:15])
     assert np.all(cls.free[10:15, 5:15] < cls.end[10:15, 5:15])
     assert np.all(cls.end[10:15, 5:15] == np.float32(2.0))
+    # told the rectangle outside which the shadow is +inf, the classes are the same
+    cam_ = static.camera
+    inrect = classify_frame(
+        D, static.reference, static.lower, static.upper, static.free_static, shadow,
+        near=cam_.near, far=cam_.far, tau_a=static.tau_a, tau_min=cam_.tolerance_min, is_color=False,
+        shadow_rect=(5, 14, 5, 14),
+    )
+    for name in ("free", "end", "invalid", "tiles"):
+        np.testing.assert_array_equal(getattr(inrect, name), getattr(cls, name))
 
 
 @settings(max_examples=40, deadline=None)

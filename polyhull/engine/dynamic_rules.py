@@ -62,6 +62,7 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import any_overlap, overlap_groups
+from .pieces import vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
 __all__ = [
@@ -273,6 +274,7 @@ class _SheetArrays(NamedTuple):
     whi: ArrayF64
     face: ArrayF64  # (S, 4) x0, y0, x1, y1 of the face in the local frame
     height: ArrayF64  # (S,)
+    W: ArrayF64  # (S, 3, 4) local -> world
 
 
 @functools.cache
@@ -289,9 +291,10 @@ def _sheet_arrays(sheets: tuple[Sheet, ...]) -> _SheetArrays:
         (x0, y0), (x1, y1) = sh.local_box()
         face[k] = (x0, y0, x1, y1)
     height = np.array([sh.height for sh in sheets], dtype=np.float64)
-    for a in (M, wlo, whi, face, height):
+    W = np.array([_to_world(m) for m in M]).reshape(S, 3, 4)
+    for a in (M, wlo, whi, face, height, W):
         a.setflags(write=False)
-    return _SheetArrays(M, wlo, whi, face, height)
+    return _SheetArrays(M, wlo, whi, face, height, W)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -406,7 +409,7 @@ def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: 
     outside the shells (of any component: a superset of "of its own", keeps more)."""
     cut = inside & ~spared
     if cut.any() and (~inside).any():
-        lo, hi = vertices.min(axis=1), vertices.max(axis=1)
+        lo, hi = vertex_bounds(vertices)
         m = ctx.params.floor_shell_margin
         cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m)
     return cut
@@ -431,8 +434,7 @@ def judge_dynamic(
         return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none)
     p = ctx.params
     eps = p.support_eps
-    lo = vertices.min(axis=1)
-    hi = vertices.max(axis=1)
+    lo, hi = vertex_bounds(vertices)
     labels = group_boxes(lo, hi)
     K = int(labels.max()) + 1
     clo = np.full((K, 3), np.inf)
@@ -525,12 +527,16 @@ def judge_dynamic(
     keep = ~removed_c[labels] & ~shell_cut
 
     removed = []
+    # each component's pieces, in order (one sort, not a pass over all pieces per component)
+    by_label = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[by_label], np.arange(K + 1))
     for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
-        idx = np.nonzero(shell_cut & (labels == k))[0]
+        idx = by_label[starts[k] : starts[k + 1]]
+        idx = idx[shell_cut[idx]]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
         removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, LazyMesh(make_mesh, idx)))
     for k in np.nonzero(removed_c)[0]:
-        idx = np.nonzero(labels == k)[0]
+        idx = by_label[starts[k] : starts[k + 1]]
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
         removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, LazyMesh(make_mesh, idx)))
 
@@ -590,51 +596,130 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
 def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
     every piece that crosses a sheet's top face, the sheet over the piece's footprint on
-    the face, grown by ``floor_shell_margin`` and clipped to the face."""
+    the face, grown by ``floor_shell_margin`` and clipped to the face.
+
+    Per sheet, the union of the footprints on a grid of ``SHEET_PITCH`` cells (a
+    superset), as one box per run of cells along x, the run broken where the height map
+    changes by more than ``SHEET_STEP``: each box is as high as C_static reaches in the
+    slab over its run (the sheet's height where no height map is known). One compiled
+    pass over the sheets (:func:`_sheet_boxes`)."""
     if vertices.shape[0] == 0 or not ctx.sheets:
         return np.zeros((0, 8, 3))
-    margin = ctx.params.floor_shell_margin
     pairs, bounds = _crossing_pairs(vertices, ctx)
-    out = []
-    heights: tuple[np.ndarray | None, ...] = ctx.sheet_heights or (None,) * len(ctx.sheets)
-    for k in np.unique(pairs[:, 1]):
-        sh, hmap = ctx.sheets[int(k)], heights[int(k)]
-        (x0, y0), (x1, y1) = sh.local_box()
-        sel = pairs[:, 1] == k
-        llo, lhi = bounds[sel, :3], bounds[sel, 3:]
-        a = np.maximum(llo[:, :2] - margin, (x0, y0))
-        b = np.minimum(lhi[:, :2] + margin, (x1, y1))
-        ok = np.all(b > a, axis=1)
-        a, b = a[ok], b[ok]
-        if len(a) == 0:
+    if len(pairs) == 0:
+        return np.zeros((0, 8, 3))
+    arr = _sheet_arrays(tuple(ctx.sheets))
+    maps = _height_maps(ctx.sheet_heights, len(ctx.sheets))
+    order = np.argsort(pairs[:, 1], kind="stable")
+    return _sheet_boxes(
+        np.ascontiguousarray(pairs[order, 1]), np.ascontiguousarray(bounds[order]), arr.face, arr.W, arr.height,
+        maps[0], maps[1], maps[2], float(ctx.params.floor_shell_margin), SHEET_PITCH, SHEET_STEP,
+    )
+
+
+_HEIGHT_MAPS: list[tuple[tuple[np.ndarray, ...], tuple[ArrayF64, np.ndarray, np.ndarray]]] = []
+
+
+def _height_maps(heights: tuple[np.ndarray, ...], n: int) -> tuple[ArrayF64, np.ndarray, np.ndarray]:
+    """The sheets' height maps flat: values, (S,) offsets, (S, 2) shapes ((0, 0): none);
+    kept for the last few tuples of maps (the monitor passes the same one every cycle)."""
+    for key, val in _HEIGHT_MAPS:
+        if key is heights:
+            return val
+    maps = list(heights) if heights else [None] * n
+    shapes = np.zeros((n, 2), dtype=np.int64)
+    offsets = np.zeros(n, dtype=np.int64)
+    parts = []
+    at = 0
+    for k, h in enumerate(maps):
+        offsets[k] = at
+        if h is not None:
+            h = np.ascontiguousarray(h, dtype=np.float64)
+            shapes[k] = h.shape
+            parts.append(h.ravel())
+            at += h.size
+    val = (np.concatenate(parts) if parts else np.zeros(0), offsets, shapes)
+    _HEIGHT_MAPS.insert(0, (heights, val))
+    del _HEIGHT_MAPS[4:]
+    return val
+
+
+@nb.njit(cache=True, nogil=True)
+def _sheet_boxes(sheet, bounds, face, W, height, hflat, hoff, hshape, margin, pitch, step):  # pragma: no cover - compiled
+    """World boxes (B, 8, 3) of :func:`sheets_under` from the crossing pairs' sheets (P,)
+    (sorted) and the pieces' local bounds (P, 6)."""
+    out = np.empty((64, 8, 3))
+    nb_out = 0
+    P = sheet.shape[0]
+    p0 = 0
+    while p0 < P:
+        k = sheet[p0]
+        p1 = p0
+        while p1 < P and sheet[p1] == k:
+            p1 += 1
+        x0, y0, x1, y1 = face[k, 0], face[k, 1], face[k, 2], face[k, 3]
+        ia = np.empty((p1 - p0, 2), dtype=np.int64)
+        ib = np.empty((p1 - p0, 2), dtype=np.int64)
+        m = 0
+        s0 = 0
+        s1 = 0
+        for p in range(p0, p1):
+            a0 = max(bounds[p, 0] - margin, x0)
+            a1 = max(bounds[p, 1] - margin, y0)
+            b0 = min(bounds[p, 3] + margin, x1)
+            b1 = min(bounds[p, 4] + margin, y1)
+            if not (b0 > a0 and b1 > a1):
+                continue
+            ia[m, 0] = int(np.floor((a0 - x0) / pitch))
+            ia[m, 1] = int(np.floor((a1 - y0) / pitch))
+            ib[m, 0] = int(np.ceil((b0 - x0) / pitch))
+            ib[m, 1] = int(np.ceil((b1 - y0) / pitch))
+            s0 = max(s0, ib[m, 0] + 1)
+            s1 = max(s1, ib[m, 1] + 1)
+            m += 1
+        p0 = p1
+        if m == 0:
             continue
-        # The union of the footprints on a grid of SHEET_PITCH cells (a superset), as one
-        # box per run of cells along x.
-        origin = np.array([x0, y0])
-        ia = np.floor((a - origin) / SHEET_PITCH).astype(np.int64)
-        ib = np.ceil((b - origin) / SHEET_PITCH).astype(np.int64)
-        shape = ib.max(axis=0) + 1
-        occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
-        np.add.at(occ, (ia[:, 0], ia[:, 1]), 1)
-        np.add.at(occ, (ib[:, 0], ia[:, 1]), -1)
-        np.add.at(occ, (ia[:, 0], ib[:, 1]), -1)
-        np.add.at(occ, (ib[:, 0], ib[:, 1]), 1)
-        cells = occ.cumsum(0).cumsum(1)[:-1, :-1] > 0  # (nx, ny)
-        # runs of occupied cells along x, broken where the height map changes by more than
-        # SHEET_STEP: each box is as high as C_static reaches in the slab over its run (the
-        # sheet's height where no height map is known)
-        col_h = np.full(cells.shape, sh.height)
-        if hmap is not None:
-            n0, n1 = min(cells.shape[0], hmap.shape[0]), min(cells.shape[1], hmap.shape[1])
-            col_h[:n0, :n1] = hmap[:n0, :n1]
-        runs = _sheet_runs(cells, col_h, SHEET_STEP)
-        lo_list, hi_list, tops = runs[:, 0:2], runs[:, 2:4], runs[:, 4]
-        lo2 = np.minimum(origin + lo_list * SHEET_PITCH, (x1, y1))
-        hi2 = np.minimum(origin + hi_list * SHEET_PITCH, (x1, y1))
-        boxes = box_vertices(np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, tops]))
-        W = _to_world(sh.to_local())
-        out.append(boxes @ W[:, :3].T + W[:, 3])
-    return np.concatenate(out) if out else np.zeros((0, 8, 3))
+        # the union of the footprints' cells (a difference grid, then prefix sums)
+        occ = np.zeros((s0 + 1, s1 + 1), dtype=np.int64)
+        for j in range(m):
+            occ[ia[j, 0], ia[j, 1]] += 1
+            occ[ib[j, 0], ia[j, 1]] -= 1
+            occ[ia[j, 0], ib[j, 1]] -= 1
+            occ[ib[j, 0], ib[j, 1]] += 1
+        for i in range(1, s0 + 1):
+            for j in range(s1 + 1):
+                occ[i, j] += occ[i - 1, j]
+        for i in range(s0 + 1):
+            for j in range(1, s1 + 1):
+                occ[i, j] += occ[i, j - 1]
+        cells = np.zeros((s0, s1), dtype=np.bool_)
+        col_h = np.full((s0, s1), height[k])
+        h0, h1 = hshape[k, 0], hshape[k, 1]
+        for i in range(s0):
+            for j in range(s1):
+                cells[i, j] = occ[i, j] > 0
+                if i < h0 and j < h1:
+                    col_h[i, j] = hflat[hoff[k] + i * h1 + j]
+        runs = _sheet_runs(cells, col_h, step)
+        for r in range(runs.shape[0]):
+            lx = min(x0 + runs[r, 0] * pitch, x1)
+            ly = min(y0 + runs[r, 1] * pitch, y1)
+            hx = min(x0 + runs[r, 2] * pitch, x1)
+            hy = min(y0 + runs[r, 3] * pitch, y1)
+            top = runs[r, 4]
+            if nb_out == out.shape[0]:
+                grown = np.empty((2 * out.shape[0], 8, 3))
+                grown[:nb_out] = out[:nb_out]
+                out = grown
+            for c in range(8):
+                x = lx if (c % 4 == 0 or c % 4 == 3) else hx
+                y = ly if (c % 4 < 2) else hy
+                z = 0.0 if c < 4 else top
+                for a in range(3):
+                    out[nb_out, c, a] = W[k, a, 0] * x + W[k, a, 1] * y + W[k, a, 2] * z + W[k, a, 3]
+            nb_out += 1
+    return out[:nb_out]
 
 
 @nb.njit(cache=True, nogil=True)

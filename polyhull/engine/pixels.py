@@ -32,6 +32,7 @@ __all__ = [
     "build_pyramid",
     "tile_segments",
     "memory_segments",
+    "box_rects",
     "small_gaps",
     "window_range",
 ]
@@ -50,6 +51,8 @@ class PixelClasses(NamedTuple):
             have no usable depth.
         far_side_share: Share of those pixels reading farther than the static band (the
             camera-moved indicator).
+        tiles: (ceil(H / tile), ceil(W / tile)) the tiles holding a segment pixel (what
+            :func:`tile_segments` visits).
     """
 
     free: ArrayF32
@@ -58,11 +61,14 @@ class PixelClasses(NamedTuple):
     invalid: np.ndarray
     invalid_share: float
     far_side_share: float
+    tiles: np.ndarray
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free, out_end, out_invalid):  # pragma: no cover - compiled
+def _classify(depth, B, T, U, fs, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
     H, W = depth.shape
+    out_tiles[:, :] = False
+    su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
     n_far = 0
     n_seen = 0
@@ -71,7 +77,6 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
         for u in range(W):
             f_s = np.float64(fs[v, u])
             d = np.float64(depth[v, u])
-            out_invalid[v, u] = False
             if f_s <= near:
                 free = near
             elif d >= T[v, u] and d <= U[v, u]:
@@ -100,7 +105,9 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
                 if usable and d > U[v, u] and d != np.inf:
                     n_far += 1
                 free = min(max(f, near), f_s)
-            end = min(f_s, np.float64(shadow[v, u]))
+            end = f_s
+            if su0 <= u <= su1 and sv0 <= v <= sv1:  # the shadow image is +inf elsewhere
+                end = min(f_s, np.float64(shadow[v, u]))
             # float32 storage rounds toward the camera (free) and away from it (end):
             # the segment only grows.
             fr = np.float32(free)
@@ -113,6 +120,7 @@ def _classify(depth, B, T, U, fs, shadow, near, far, a, tmin, is_color, out_free
             out_end[v, u] = en
             if fr < en:
                 n_seg += 1
+                out_tiles[v // tile, u // tile] = True
     return n_seg, n_invalid, n_far, n_seen
 
 
@@ -131,6 +139,8 @@ def classify_frame(
     is_color: bool,
     out_free: ArrayF32 | None = None,
     out_end: ArrayF32 | None = None,
+    tile: int = 8,
+    shadow_rect: tuple[int, int, int, int] | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -148,72 +158,109 @@ def classify_frame(
         is_color: Binary-depth (colour) camera.
         out_free: (H, W) float32 array to write the free depth into (a new one if None).
         out_end: (H, W) float32 array to write the segment ends into (a new one if None).
+        tile: Edge [px] of the tiles of :attr:`PixelClasses.tiles`.
+        shadow_rect: (u0, u1, v0, v1) inclusive rectangle outside which ``shadow_start`` is
+            +inf (not read there); None: the whole image.
     """
     H, W = free_static.shape
     if out_free is None:
         out_free = np.empty((H, W), dtype=np.float32)
     if out_end is None:
         out_end = np.empty((H, W), dtype=np.float32)
-    out_invalid = np.empty((H, W), dtype=np.bool_)
+    out_invalid = np.zeros((H, W), dtype=np.bool_)
+    tile = int(tile)
+    rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
+    out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     n_seg, n_invalid, n_far, n_seen = _classify(
-        depth, reference, lower, upper, free_static, shadow_start,
+        depth, reference, lower, upper, free_static, shadow_start, rect,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
+        tile, out_tiles,
     )
     seen = max(int(n_seen), 1)
-    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen)
+    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen, out_tiles)
 
 
 @nb.njit(cache=True, nogil=True)
-def _small_gaps(free, end, invalid, fs, near, fx, fy, size):  # pragma: no cover - compiled
+def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pragma: no cover - compiled
     """(G, 2) the pixels (v, u) of the 8-connected clusters of segment pixels without a reading
     (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
-    pass over the image, each cluster followed from its first pixel (a stack)."""
+    pass over the marked ``tiles`` (edge ``tile`` px; segment pixels lie only in them), each
+    cluster followed from its first pixel (:func:`_gap_cluster`)."""
     H, W = free.shape
+    # the candidates first (a tight scan into an array that never grows: an array
+    # reassigned in the loop costs reference counting per pixel), then their clusters
+    room = 0
+    for tb in range(tiles.shape[0]):
+        for ub in range(tiles.shape[1]):
+            if tiles[tb, ub]:
+                room += (min((tb + 1) * tile, H) - tb * tile) * (min((ub + 1) * tile, W) - ub * tile)
+    cand = np.empty((room, 2), dtype=np.int64)
+    nc = 0
+    for tb in range(tiles.shape[0]):
+        for ub in range(tiles.shape[1]):
+            if not tiles[tb, ub]:
+                continue
+            for v in range(tb * tile, min((tb + 1) * tile, H)):
+                for u in range(ub * tile, min((ub + 1) * tile, W)):
+                    if invalid[v, u] and free[v, u] < end[v, u]:
+                        cand[nc, 0] = v
+                        cand[nc, 1] = u
+                        nc += 1
     seen = np.zeros((H, W), dtype=np.bool_)
     stack = np.empty((64, 2), dtype=np.int64)
     comp = np.empty((64, 2), dtype=np.int64)
     out = np.empty((64, 2), dtype=np.int64)
     n_out = 0
-    for v in range(H):
-        for u in range(W):
-            if seen[v, u] or not (invalid[v, u] and free[v, u] < end[v, u]):
-                continue
-            seen[v, u] = True
-            stack[0, 0] = v
-            stack[0, 1] = u
-            ns = 1
-            nc = 0
-            u0, u1, v0, v1 = u, u, v, v
-            zmax = 0.0
-            closed = True
-            while ns > 0:
-                ns -= 1
-                pv, pu = stack[ns, 0], stack[ns, 1]
-                comp = push_row(comp, nc, (pv, pu))
-                nc += 1
-                u0 = min(u0, pu)
-                u1 = max(u1, pu)
-                v0 = min(v0, pv)
-                v1 = max(v1, pv)
-                zmax = max(zmax, np.float64(end[pv, pu]))
-                for dv in range(-1, 2):
-                    for du in range(-1, 2):
-                        qv, qu = pv + dv, pu + du
-                        if qv < 0 or qv >= H or qu < 0 or qu >= W:
-                            closed = False
-                            continue
-                        if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
-                            if not seen[qv, qu]:
-                                seen[qv, qu] = True
-                                stack = push_row(stack, ns, (qv, qu))
-                                ns += 1
-                        elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
-                            closed = False
-            if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
-                for c in range(nc):
-                    out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
-                    n_out += 1
+    for c in range(nc):
+        v, u = cand[c, 0], cand[c, 1]
+        if not seen[v, u]:
+            stack, comp, out, n_out = _gap_cluster(
+                v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out
+            )
     return out[:n_out]
+
+
+@nb.njit(cache=True, nogil=True)
+def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out):  # pragma: no cover - compiled
+    """Follow the cluster of pixel (v, u) (a stack); append its pixels to ``out`` when it
+    is a small gap. Returns the (possibly grown) work arrays and the count in ``out``."""
+    H, W = free.shape
+    seen[v, u] = True
+    stack[0, 0] = v
+    stack[0, 1] = u
+    ns = 1
+    nc = 0
+    u0, u1, v0, v1 = u, u, v, v
+    zmax = 0.0
+    closed = True
+    while ns > 0:
+        ns -= 1
+        pv, pu = stack[ns, 0], stack[ns, 1]
+        comp = push_row(comp, nc, (pv, pu))
+        nc += 1
+        u0 = min(u0, pu)
+        u1 = max(u1, pu)
+        v0 = min(v0, pv)
+        v1 = max(v1, pv)
+        zmax = max(zmax, np.float64(end[pv, pu]))
+        for dv in range(-1, 2):
+            for du in range(-1, 2):
+                qv, qu = pv + dv, pu + du
+                if qv < 0 or qv >= H or qu < 0 or qu >= W:
+                    closed = False
+                    continue
+                if invalid[qv, qu] and free[qv, qu] < end[qv, qu]:
+                    if not seen[qv, qu]:
+                        seen[qv, qu] = True
+                        stack = push_row(stack, ns, (qv, qu))
+                        ns += 1
+                elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
+                    closed = False
+    if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
+        for c in range(nc):
+            out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
+            n_out += 1
+    return stack, comp, out, n_out
 
 
 def small_gaps(
@@ -242,10 +289,24 @@ def small_gaps(
 
 
 def small_gap_pixels(
-    free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
+    free: ArrayF32,
+    end: ArrayF32,
+    invalid: np.ndarray,
+    free_static: ArrayF32,
+    near: float,
+    fx: float,
+    fy: float,
+    size: float,
+    tiles: tuple[int, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask)."""
-    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size))
+    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask).
+    ``tiles``: (edge [px], grid) the tiles that may hold a segment pixel
+    (:attr:`PixelClasses.tiles`), the only ones visited; None: all."""
+    if tiles is None:
+        tile, grid = 1 << 30, np.ones((1, 1), dtype=np.bool_)
+    else:
+        tile, grid = int(tiles[0]), tiles[1]
+    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), tile, grid)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -273,29 +334,38 @@ def window_range(img: np.ndarray, rects: np.ndarray) -> tuple[np.ndarray, np.nda
 
 def pyramid_layout(H: int, W: int) -> tuple[np.ndarray, np.ndarray]:
     """Offsets (L,) and (rows, cols) shapes (L, 2) of the levels of an (H, W) image's
-    min/max pyramid, flattened level after level (level l has 2^l x 2^l pixel cells)."""
+    min/max pyramid (level l has 2^l x 2^l pixel cells). Level 0 is the image itself
+    (offset 0, not stored); levels 1.. are flattened one after the other from offset 0."""
     shapes = [(H, W)]
     while shapes[-1][0] > 1 or shapes[-1][1] > 1:
         h, w = shapes[-1]
         shapes.append((-(-h // 2), -(-w // 2)))
     shp = np.array(shapes, dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(shp[:, 0] * shp[:, 1])[:-1]]).astype(np.int64)
+    offsets = np.zeros(len(shp), dtype=np.int64)
+    offsets[2:] = np.cumsum(shp[1:-1, 0] * shp[1:-1, 1])
     return offsets, shp
 
 
 @nb.njit(cache=True, nogil=True)
 def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - compiled
     H, W = free.shape
-    for v in range(H):
-        for u in range(W):
-            mins[v * W + u] = free[v, u]
-            maxs[v * W + u] = free[v, u]
-    for lev in range(1, shapes.shape[0]):
+    if shapes.shape[0] > 1:
+        h1, w1 = shapes[1, 0], shapes[1, 1]
+        for r in range(h1):
+            # a cell past the last row or column repeats it (no change to min or max)
+            ra = 2 * r
+            rb = min(2 * r + 1, H - 1)
+            for c in range(w1):
+                c0 = 2 * c
+                c1 = min(c0 + 1, W - 1)
+                x0, x1, x2, x3 = free[ra, c0], free[ra, c1], free[rb, c0], free[rb, c1]
+                mins[r * w1 + c] = min(min(x0, x1), min(x2, x3))
+                maxs[r * w1 + c] = max(max(x0, x1), max(x2, x3))
+    for lev in range(2, shapes.shape[0]):
         h0, w0 = shapes[lev - 1, 0], shapes[lev - 1, 1]
         h1, w1 = shapes[lev, 0], shapes[lev, 1]
         o0, o1 = offsets[lev - 1], offsets[lev]
         for r in range(h1):
-            # a cell past the last row or column repeats it (no change to min or max)
             a = o0 + 2 * r * w0
             b = o0 + min(2 * r + 1, h0 - 1) * w0
             for c in range(w1):
@@ -306,8 +376,9 @@ def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - com
 
 
 def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray) -> None:
-    """Write the min and max pyramids of an (H, W) free depth image into ``mins`` and
-    ``maxs`` (flat, laid out by :func:`pyramid_layout`; range queries for carving)."""
+    """Write the levels 1.. of the min and max pyramids of an (H, W) free depth image into
+    ``mins`` and ``maxs`` (flat, laid out by :func:`pyramid_layout`; level 0 is the image
+    itself; range queries for carving)."""
     _build_pyramid(free, mins, maxs, offsets, shapes)
 
 
@@ -325,7 +396,7 @@ def push_row(out, n, row):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no cover - compiled
+def _tile_segments(free, end, covered, front, back, tol, tile, mask):  # pragma: no cover - compiled
     """Pieces (u0, u1, v0, v1 pixel indices inclusive, z0, z1) of one camera.
 
     A tile gives one piece, the bounding rectangle of its segment pixels from their
@@ -345,6 +416,8 @@ def _tile_segments(free, end, covered, front, back, tol, tile):  # pragma: no co
     n = 0
     for tb in range(Hb):
         for ub in range(Wb):
+            if not mask[tb, ub]:
+                continue
             v0 = tb * tile
             u0 = ub * tile
             v1 = min(v0 + tile, H)
@@ -422,15 +495,24 @@ def tile_segments(
     front: ArrayF32 | None = None,
     back: ArrayF32 | None = None,
     tol: float = 0.0,
+    tiles: np.ndarray | None = None,
 ) -> np.ndarray:
     """(N, 6) initial pieces of one camera: pixel rectangle (u0, u1, v0, v1), inclusive
     pixel indices, and depth range (z0, z1) [m] (see :func:`_tile_segments`). ``front``
     and ``back`` bound the padded robot's depth in its ``covered`` pixels; without them,
-    every tile with a covered pixel is split into pixels."""
+    every tile with a covered pixel is split into pixels. ``tiles`` (the tile grid's
+    shape) marks the tiles that may hold a segment pixel (:attr:`PixelClasses.tiles`);
+    the others are not visited. None: every tile is."""
     if front is None or back is None:
         front = np.full(free.shape, -np.inf, dtype=np.float32)
         back = np.full(free.shape, np.inf, dtype=np.float32)
-    return _tile_segments(free, end, covered, front, back, float(tol), int(tile))
+    H, W = free.shape
+    shape = ((H + tile - 1) // tile, (W + tile - 1) // tile)
+    if tiles is None:
+        tiles = np.ones(shape, dtype=np.bool_)
+    elif tiles.shape != shape:
+        raise ValueError(f"tiles: expected shape {shape}, got {tiles.shape}")
+    return _tile_segments(free, end, covered, front, back, float(tol), int(tile), tiles)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -510,3 +592,85 @@ def memory_segments(
         _memory(covered, robot_back, free, free_static, np.ascontiguousarray(rects, dtype=np.int64),
                 np.ascontiguousarray(z_ranges, dtype=np.float64), int(cell), out_f, out_e)
     return out_f, out_e
+
+
+def box_rects(
+    lo: np.ndarray, hi: np.ndarray, T_camera_world: np.ndarray, intrinsics: tuple[float, float, float, float],
+    z_beyond: float, window: tuple[int, int, int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pixel rectangles and depth ranges of world boxes [lo, hi] (B, 3) in a camera.
+
+    A box counts when all its corners are in front of the camera (z > 1e-6), some corner
+    is deeper than ``z_beyond`` [m], and the pixel rectangle of its corners' projections
+    meets ``window`` (u0, u1, v0, v1, inclusive). Returns (S, 4) int64 rectangles (u0, u1,
+    v0, v1) clipped to the window and (S, 2) the corners' z range, for the boxes that
+    count, in order (one compiled pass; no corner array)."""
+    fx, fy, cx, cy = intrinsics
+    T = np.ascontiguousarray(T_camera_world, dtype=np.float64)
+    n = lo.shape[0]
+    rects = np.empty((n, 4), dtype=np.int64)
+    zr = np.empty((n, 2))
+    k = _box_rects(
+        np.ascontiguousarray(lo, dtype=np.float64), np.ascontiguousarray(hi, dtype=np.float64), T,
+        float(fx), float(fy), float(cx), float(cy), float(z_beyond),
+        int(window[0]), int(window[1]), int(window[2]), int(window[3]), rects, zr,
+    )
+    return rects[:k], zr[:k]
+
+
+@nb.njit(cache=True, nogil=True)
+def project_bounds(points, R, t, fx, fy, cx, cy, z_eps):  # pragma: no cover - compiled
+    """(umin, umax, vmin, vmax, zmin, zmax) of world points (K, 3) in a camera (world ->
+    camera rotation ``R``, translation ``t``): the z range of all, the pixel range of those
+    with z > ``z_eps``."""
+    umin = np.inf
+    umax = -np.inf
+    vmin = np.inf
+    vmax = -np.inf
+    zmin = np.inf
+    zmax = -np.inf
+    for j in range(points.shape[0]):
+        x, y, z = points[j, 0], points[j, 1], points[j, 2]
+        px = R[0, 0] * x + R[0, 1] * y + R[0, 2] * z + t[0]
+        py = R[1, 0] * x + R[1, 1] * y + R[1, 2] * z + t[1]
+        pz = R[2, 0] * x + R[2, 1] * y + R[2, 2] * z + t[2]
+        zmin = min(zmin, pz)
+        zmax = max(zmax, pz)
+        if pz > z_eps:
+            u = fx * px / pz + cx
+            v = fy * py / pz + cy
+            umin = min(umin, u)
+            umax = max(umax, u)
+            vmin = min(vmin, v)
+            vmax = max(vmax, v)
+    return umin, umax, vmin, vmax, zmin, zmax
+
+
+@nb.njit(cache=True, nogil=True)
+def _box_rects(lo, hi, T, fx, fy, cx, cy, z_beyond, c0, c1, r0, r1, rects, zr):  # pragma: no cover - compiled
+    k = 0
+    corners = np.empty((8, 3))
+    R = T[:3, :3]
+    t = T[:3, 3]
+    for b in range(lo.shape[0]):
+        for m in range(8):
+            corners[m, 0] = hi[b, 0] if m & 1 else lo[b, 0]
+            corners[m, 1] = hi[b, 1] if m & 2 else lo[b, 1]
+            corners[m, 2] = hi[b, 2] if m & 4 else lo[b, 2]
+        umin, umax, vmin, vmax, zmin, zmax = project_bounds(corners, R, t, fx, fy, cx, cy, 1e-6)
+        if not (zmax > z_beyond and zmin > 1e-6):
+            continue
+        pu0 = np.floor(umin + 0.5)
+        pu1 = np.floor(umax + 0.5)
+        pv0 = np.floor(vmin + 0.5)
+        pv1 = np.floor(vmax + 0.5)
+        if not (pu1 >= c0 and pu0 <= c1 and pv1 >= r0 and pv0 <= r1):
+            continue
+        rects[k, 0] = int(max(pu0, c0))
+        rects[k, 1] = int(min(pu1, c1))
+        rects[k, 2] = int(max(pv0, r0))
+        rects[k, 3] = int(min(pv1, r1))
+        zr[k, 0] = zmin
+        zr[k, 1] = zmax
+        k += 1
+    return k

@@ -43,7 +43,7 @@ import numpy as np
 
 from ..typed import ArrayF64
 from .boxes import any_overlap
-from .pieces import PieceSet
+from .pieces import PieceSet, vertex_bounds
 from .static_model import SHEET_PITCH
 
 __all__ = [
@@ -219,7 +219,8 @@ def refine_kept(
         front = float(result.distance)
         v = kept.vertices
         d = distance_lower_bounds(v, spheres)
-        size = (v.max(axis=1) - v.min(axis=1)).max(axis=1)
+        vlo, vhi = vertex_bounds(v)
+        size = (vhi - vlo).max(axis=1)
         live = movable & ~cut & ((flags & SETTLED) == 0)
         near = live & (size > 1.5 * np.maximum(FINE, alpha * (d - front))) & (d < front + BAND)
         sheet = live & cross & (size > 1.5 * FINE) & (d < front + reach)
@@ -228,7 +229,8 @@ def refine_kept(
             break
         rounds += 1
         sel = near | sheet
-        changed_lo, changed_hi = v[sel & ~inside].min(axis=1), v[sel & ~inside].max(axis=1)
+        changed = sel & ~inside
+        changed_lo, changed_hi = vlo[changed], vhi[changed]
         parts, out_flags = [kept.select(~sel)], [flags[~sel]]
         for group, a in ((near, alpha), (sheet, 0.0)):
             for f in np.unique(flags[group]):
@@ -251,7 +253,7 @@ def refine_kept(
             # the shell rule again where its keepers changed: a piece in a shell is kept
             # only within ``margin`` of a piece outside every shell (refinement only
             # removes such pieces, so a piece once cut stays cut)
-            lo, hi = kept.vertices.min(axis=1), kept.vertices.max(axis=1)
+            lo, hi = vertex_bounds(kept.vertices)
             test = inside & ~cut & ((flags & SPARED) == 0)
             test[:n_rest] &= any_overlap(lo[:n_rest], hi[:n_rest], changed_lo - margin, changed_hi + margin)
             if test.any():

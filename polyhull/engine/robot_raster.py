@@ -43,19 +43,21 @@ class PaddedPieces:
     Attributes:
         links: Link name of every piece.
         vertices: Hull vertices of every piece in its link frame [m], (K_i, 3) each.
-        triangles: Hull triangles of every piece (indices into its vertices), (F_i, 3).
+        faces: Hull faces of every piece as convex polygons (the hull's coplanar triangles
+            merged), (F_i, P) vertex indices counter-clockwise seen from outside, padded
+            with -1 after each face's last vertex.
         padding: The padding [m].
     """
 
     links: tuple[str, ...]
     vertices: tuple[ArrayF64, ...]
-    triangles: tuple[np.ndarray, ...]
+    faces: tuple[np.ndarray, ...]
     padding: float
 
     @classmethod
     def build(cls, pieces_link: Mapping[str, Sequence[ArrayF64]], padding: float) -> PaddedPieces:
         """Grow every convex piece (link frame) by ``padding`` [m] and take its hull."""
-        links, verts, tris = [], [], []
+        links, verts, faces = [], [], []
         for name, plist in pieces_link.items():
             for piece in plist:
                 grown = grow_piece(np.asarray(piece, dtype=np.float64), padding)
@@ -63,18 +65,26 @@ class PaddedPieces:
                 keep = np.unique(hull.simplices)
                 remap = np.full(len(grown), -1, dtype=np.int64)
                 remap[keep] = np.arange(len(keep))
+                v = np.ascontiguousarray(grown[keep])
                 links.append(name)
-                verts.append(np.ascontiguousarray(grown[keep]))
-                tris.append(np.ascontiguousarray(remap[hull.simplices]))
-        return cls(tuple(links), tuple(verts), tuple(tris), float(padding))
+                verts.append(v)
+                faces.append(_polygons(v, remap[hull.simplices], hull.equations))
+        return cls(tuple(links), tuple(verts), tuple(faces), float(padding))
 
     @functools.cached_property
-    def all_triangles(self) -> np.ndarray:
-        """(F, 3) every piece's triangles, indexing the pieces' vertices stacked in order."""
-        offsets = np.cumsum([0] + [len(v) for v in self.vertices])[:-1]
-        if not self.triangles:
+    def all_faces(self) -> np.ndarray:
+        """(F, P) every piece's faces, indexing the pieces' vertices stacked in order
+        (-1 pads)."""
+        if not self.faces:
             return np.zeros((0, 3), dtype=np.int64)
-        return np.ascontiguousarray(np.concatenate([t + o for t, o in zip(self.triangles, offsets, strict=True)]))
+        P = max(f.shape[1] for f in self.faces)
+        offsets = np.cumsum([0] + [len(v) for v in self.vertices])[:-1]
+        out = []
+        for f, o in zip(self.faces, offsets, strict=True):
+            g = np.full((len(f), P), -1, dtype=np.int64)
+            g[:, : f.shape[1]] = np.where(f >= 0, f + o, -1)
+            out.append(g)
+        return np.ascontiguousarray(np.concatenate(out))
 
     def world(self, T_world_links: Mapping[str, ArrayF64]) -> list[ArrayF64]:
         """Hull vertices of every piece in the world frame at the given link poses."""
@@ -83,6 +93,54 @@ class PaddedPieces:
             T = T_world_links[name]
             out.append(v @ T[:3, :3].T + T[:3, 3])
         return out
+
+
+COPLANAR = 1e-9
+"""Edge-adjacent hull triangles whose planes (unit normal and offset [m]) agree within
+this are merged into one face. A face is the convex hull of its triangles' vertices on
+the plane; the raster bounds its depth with the plane through three of its vertices plus
+the other vertices' deviation from it."""
+
+
+def _polygons(vertices: ArrayF64, simplices: np.ndarray, equations: ArrayF64) -> np.ndarray:
+    """Convex polygons (F, P) of a hull's coplanar triangles (see :class:`PaddedPieces`)."""
+    n_tri = len(simplices)
+    parent = np.arange(n_tri)
+
+    def find(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = int(parent[i])
+        return i
+
+    edges: dict[tuple[int, int], int] = {}
+    for t, tri in enumerate(simplices):
+        for k in range(3):
+            e = (int(min(tri[k], tri[(k + 1) % 3])), int(max(tri[k], tri[(k + 1) % 3])))
+            o = edges.setdefault(e, t)
+            if o != t and np.abs(equations[o] - equations[t]).max() <= COPLANAR:
+                parent[find(t)] = find(o)
+    roots = np.array([find(t) for t in range(n_tri)])
+    polys = []
+    for g in np.unique(roots):
+        sel = roots == g
+        idx = np.unique(simplices[sel])
+        n = equations[sel][0, :3]
+        a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        a /= np.linalg.norm(a)
+        b = np.cross(n, a)  # (a, b, n) right-handed: counter-clockwise in (a, b) is about n
+        d = vertices[idx] - vertices[idx].mean(axis=0)
+        xy = np.column_stack([d @ a, d @ b])
+        ring = idx if len(idx) == 3 else idx[ConvexHull(xy).vertices]  # counter-clockwise (2-D)
+        e1, e2 = xy[1] - xy[0], xy[2] - xy[0]
+        if len(ring) == 3 and e1[0] * e2[1] - e1[1] * e2[0] < 0:
+            ring = ring[::-1]
+        polys.append(ring)
+    P = max(len(q) for q in polys)
+    out = np.full((len(polys), P), -1, dtype=np.int64)
+    for i, q in enumerate(polys):
+        out[i, : len(q)] = q
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,114 +166,173 @@ class RobotRaster:
 
 
 @nb.njit(cache=True, nogil=True)
-def _raster(pc, tris, W, H, near, zbuf, zback, rect):  # pragma: no cover - compiled
-    """Rasterise triangles (camera-frame vertices ``pc``) into ``zbuf`` (a lower bound of
-    the nearest depth) and ``zback`` (an upper bound of the farthest depth); grow ``rect``
-    (u0, u1, v0, v1) to hold every pixel written.
+def _raster(pc, faces, W, H, near, zbuf, zback, rect):  # pragma: no cover - compiled
+    """Rasterise convex polygon faces (``faces`` (F, P) indices into the camera-frame,
+    pre-scaled vertices ``pc``, -1 padded) into ``zbuf`` (a lower bound of the nearest
+    depth) and ``zback`` (an upper bound of the farthest depth); grow ``rect`` (u0, u1, v0,
+    v1) to hold every pixel written.
 
-    A pixel's square, grown by one pixel, meets a triangle when it meets each edge's
-    inner half-plane; per row that is an interval of u, computed once per row (one pixel
-    wider on each side, where the per-pixel test decides, so rounding never drops a
-    pixel). Over the square, the triangle's plane ``w = A u + B v + C`` ranges over
-    ``w(centre) -/+ r (|A| + |B|)``."""
+    A ray through a convex piece enters through a face turned towards the camera and
+    leaves through one turned away, so front faces write only ``zbuf`` and back faces only
+    ``zback`` (faces seen edge-on write both; when some vertex is behind the camera, every
+    face writes both). A pixel's square, grown by one pixel, meets a face when it meets
+    each edge's inner half-plane; per row that is an interval of u, computed once per row
+    (one pixel wider on each side, where the per-pixel test decides, so rounding never
+    drops a pixel). Over the square, the face's plane ``w = A u + B v + C`` (through its
+    widest fan triangle, ``w = -1/z``) ranges over ``w(centre) -/+ r (|A| + |B|)``, widened by
+    the face's vertices' largest deviation from that plane."""
     grow = 1.0  # dilation [px]
     r = 0.5 + grow
-    for t in range(tris.shape[0]):
-        i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
-        z0, z1, z2 = pc[i0, 2], pc[i1, 2], pc[i2, 2]
-        if z0 <= 1e-3 or z1 <= 1e-3 or z2 <= 1e-3:
+    re = r + 1e-6  # the edge tests: a square that touches an edge meets the face
+    P = faces.shape[1]
+    both_all = False
+    for i in range(pc.shape[0]):
+        if pc[i, 2] <= 1e-3:
+            both_all = True
+    us = np.empty(P)
+    vs = np.empty(P)
+    ws = np.empty(P)
+    nx = np.empty(P)
+    ny = np.empty(P)
+    kk = np.empty(P)
+    for f in range(faces.shape[0]):
+        m = 0
+        behind = False
+        while m < P and faces[f, m] >= 0:
+            z = pc[faces[f, m], 2]
+            if z <= 1e-3:
+                behind = True
+            m += 1
+        if behind or m < 3:
             continue  # behind the camera: left out (the region then reaches the robot: stop)
-        u0 = pc[i0, 0] / z0
-        v0 = pc[i0, 1] / z0
-        u1 = pc[i1, 0] / z1
-        v1 = pc[i1, 1] / z1
-        u2 = pc[i2, 0] / z2
-        v2 = pc[i2, 1] / z2
-        w0, w1, w2 = -1.0 / z0, -1.0 / z1, -1.0 / z2
-        wmin = min(w0, min(w1, w2))
-        wmax = max(w0, max(w1, w2))
-        area = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
-        sgn = 1.0 if area >= 0 else -1.0
-        # Plane w = A u + B v + C (degenerate: the nearest vertex everywhere).
-        planar = abs(area) > 1e-12
+        wmin = np.inf
+        wmax = -np.inf
+        for j in range(m):
+            q = faces[f, j]
+            z = pc[q, 2]
+            us[j] = pc[q, 0] / z
+            vs[j] = pc[q, 1] / z
+            ws[j] = -1.0 / z
+            wmin = min(wmin, ws[j])
+            wmax = max(wmax, ws[j])
+        # facing: the sign of the fan's triple products (camera at the origin)
+        q0 = faces[f, 0]
+        x0, y0, z0 = pc[q0, 0], pc[q0, 1], pc[q0, 2]
+        trip = 0.0
+        scale = 0.0
+        area = 0.0
+        best = 0.0
+        jb = 1
+        for j in range(1, m - 1):
+            qa, qb = faces[f, j], faces[f, j + 1]
+            xa, ya, za = pc[qa, 0], pc[qa, 1], pc[qa, 2]
+            xb, yb, zb = pc[qb, 0], pc[qb, 1], pc[qb, 2]
+            t = x0 * (ya * zb - za * yb) - y0 * (xa * zb - za * xb) + z0 * (xa * yb - ya * xb)
+            trip += t
+            scale += abs(t)
+            ar = (us[j] - us[0]) * (vs[j + 1] - vs[0]) - (us[j + 1] - us[0]) * (vs[j] - vs[0])
+            area += ar
+            if abs(ar) > best:
+                best = abs(ar)
+                jb = j
+        mode = 0  # 0 both, 1 front (zbuf), 2 back (zback)
+        if not both_all and abs(trip) > 1e-9 * scale:
+            mode = 1 if trip < 0.0 else 2
+        sgn = 1.0 if area >= 0.0 else -1.0
+        # plane w = A u + B v + C (degenerate: the nearest / farthest vertex everywhere)
+        planar = best > 1e-12
         A = 0.0
         Bc = 0.0
         C = wmin
+        dev = 0.0
         if planar:
-            A = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) / area
-            Bc = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) / area
+            u0, v0, w0 = us[0], vs[0], ws[0]
+            u1, v1, w1 = us[jb], vs[jb], ws[jb]
+            u2, v2, w2 = us[jb + 1], vs[jb + 1], ws[jb + 1]
+            ar = (u1 - u0) * (v2 - v0) - (u2 - u0) * (v1 - v0)
+            A = ((w1 - w0) * (v2 - v0) - (w2 - w0) * (v1 - v0)) / ar
+            Bc = ((u1 - u0) * (w2 - w0) - (u2 - u0) * (w1 - w0)) / ar
             C = w0 - A * u0 - Bc * v0
-        spread = r * (abs(A) + abs(Bc))
-        umin = min(u0, min(u1, u2)) - grow - 0.5
-        umax = max(u0, max(u1, u2)) + grow + 0.5
-        vmin = min(v0, min(v1, v2)) - grow - 0.5
-        vmax = max(v0, max(v1, v2)) + grow + 0.5
+            for j in range(m):
+                dev = max(dev, abs(ws[j] - (A * us[j] + Bc * vs[j] + C)))
+        spread = r * (abs(A) + abs(Bc)) + dev
+        umin = np.inf
+        umax = -np.inf
+        vmin = np.inf
+        vmax = -np.inf
+        for j in range(m):
+            umin = min(umin, us[j])
+            umax = max(umax, us[j])
+            vmin = min(vmin, vs[j])
+            vmax = max(vmax, vs[j])
+        umin -= grow + 0.5
+        umax += grow + 0.5
+        vmin -= grow + 0.5
+        vmax += grow + 0.5
         if umax < -0.5 or vmax < -0.5 or umin > W - 0.5 or vmin > H - 0.5:
             continue
         pu0 = max(int(np.floor(umin + 0.5)), 0)
         pu1 = min(int(np.floor(umax + 0.5)), W - 1)
         pv0 = max(int(np.floor(vmin + 0.5)), 0)
         pv1 = min(int(np.floor(vmax + 0.5)), H - 1)
-        # inward edge normals and offsets: val = nx u + ny v + k >= 0 inside (grown)
-        n0x = -(v1 - v0) * sgn
-        n0y = (u1 - u0) * sgn
-        n1x = -(v2 - v1) * sgn
-        n1y = (u2 - u1) * sgn
-        n2x = -(v0 - v2) * sgn
-        n2y = (u0 - u2) * sgn
-        # the edge tests use r + 1e-6 px: a square that touches an edge meets the
-        # triangle whatever the rounding
-        re = r + 1e-6
-        k0 = -n0x * u0 - n0y * v0 + re * (abs(n0x) + abs(n0y))
-        k1 = -n1x * u1 - n1y * v1 + re * (abs(n1x) + abs(n1y))
-        k2 = -n2x * u2 - n2y * v2 + re * (abs(n2x) + abs(n2y))
+        # inward edge normals and offsets: val = nx u + ny v + k >= 0 inside (grown);
+        # a zero-length edge (repeated vertex) tests nothing
+        for j in range(m):
+            jn = j + 1 if j + 1 < m else 0
+            nx[j] = -(vs[jn] - vs[j]) * sgn
+            ny[j] = (us[jn] - us[j]) * sgn
+            kk[j] = -nx[j] * us[j] - ny[j] * vs[j] + re * (abs(nx[j]) + abs(ny[j]))
         for v in range(pv0, pv1 + 1):
             a = float(pu0)
             b = float(pu1)
             if planar:
-                # the row's interval from the three half-planes
-                for e in range(3):
-                    if e == 0:
-                        nx, c = n0x, n0y * v + k0
-                    elif e == 1:
-                        nx, c = n1x, n1y * v + k1
-                    else:
-                        nx, c = n2x, n2y * v + k2
-                    if nx > 0.0:
-                        a = max(a, np.floor(-c / nx) - 1.0)
-                    elif nx < 0.0:
-                        b = min(b, np.ceil(-c / nx) + 1.0)
+                # the row's interval from the half-planes
+                for j in range(m):
+                    c = ny[j] * v + kk[j]
+                    if nx[j] > 0.0:
+                        a = max(a, np.floor(-c / nx[j]) - 1.0)
+                    elif nx[j] < 0.0:
+                        b = min(b, np.ceil(-c / nx[j]) + 1.0)
                     elif c < 0.0:
                         b = a - 1.0
                 if not a <= b:  # (NaN-safe)
                     continue
-            for u in range(int(a), int(b) + 1):
+            ia, ib = int(a), int(b)
+            for u in range(ia, ib + 1):
                 if planar:
-                    if n0x * u + n0y * v + k0 < 0.0 or n1x * u + n1y * v + k1 < 0.0 or n2x * u + n2y * v + k2 < 0.0:
-                        continue
+                    # the interval is each half-plane's threshold widened by one pixel: the
+                    # pixels two or more inside both ends pass every half-plane
+                    if u < ia + 3 or u > ib - 3:
+                        out = False
+                        for j in range(m):
+                            if nx[j] * u + ny[j] * v + kk[j] < 0.0:
+                                out = True
+                                break
+                        if out:
+                            continue
                     wc = A * u + Bc * v + C
                     wb = max(wc - spread, wmin)
                     wf = min(wc + spread, wmax)
                 else:
                     wb = wmin
                     wf = wmax
-                if wb >= 0.0:
-                    continue
-                z = -1.0 / wb
-                z = max(z, near)
-                if z < zbuf[v, u]:
-                    zbuf[v, u] = z
-                zf = -1.0 / wf if wf < 0.0 else np.inf
-                if zf > zback[v, u]:
-                    zback[v, u] = zf
-                if u < rect[0]:
-                    rect[0] = u
-                if u > rect[1]:
-                    rect[1] = u
-                if v < rect[2]:
-                    rect[2] = v
-                if v > rect[3]:
-                    rect[3] = v
+                if mode != 2 and wb < 0.0:
+                    z = max(-1.0 / wb, near)
+                    if z < zbuf[v, u]:
+                        zbuf[v, u] = z
+                if mode != 1 and wb < 0.0:
+                    zf = -1.0 / wf if wf < 0.0 else np.inf
+                    if zf > zback[v, u]:
+                        zback[v, u] = zf
+                if wb < 0.0:
+                    if u < rect[0]:
+                        rect[0] = u
+                    if u > rect[1]:
+                        rect[1] = u
+                    if v < rect[2]:
+                        rect[2] = v
+                    if v > rect[3]:
+                        rect[3] = v
 
 
 class RasterBuffers:
@@ -283,7 +400,7 @@ def rasterize_robot(
             pc = camera.world_to_camera(np.concatenate(pieces_world))
             # Pixel coordinates are (fx x + cx z) / z: pre-scale so the kernel divides once.
             pix = np.column_stack([k.fx * pc[:, 0] + k.cx * pc[:, 2], k.fy * pc[:, 1] + k.cy * pc[:, 2], pc[:, 2]])
-            _raster(pix, pieces.all_triangles, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
+            _raster(pix, pieces.all_faces, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
         covered, front, back, start = buffers.take()
         box: tuple[int, int, int, int] | None = None
         if rect[1] >= rect[0]:
@@ -307,17 +424,22 @@ def rasterize_robot(
 @nb.njit(cache=True, nogil=True)
 def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front, back, start):  # pragma: no cover - compiled
     """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``,
-    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there."""
+    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there.
+
+    A pixel is covered when both a front and a back face wrote it: a ray through its grown
+    square that meets a piece enters through a front face and leaves through a back face,
+    whose (superset) half-plane tests both pass, so only pixels no ray hits are left out
+    (the per-edge tests pass a few of those near a face's sharp corners)."""
     ninf = np.float32(-np.inf)
     pinf = np.float32(np.inf)
     for v in range(v0, v1 + 1):
         for u in range(u0, u1 + 1):
             z = zbuf[v, u]
-            if z == np.inf:
-                continue
             zb = zback[v, u]
             zbuf[v, u] = np.inf
             zback[v, u] = -np.inf
+            if z == np.inf or zb == -np.inf:
+                continue
             covered[v, u] = True
             f = np.float32(z)
             if f > z:

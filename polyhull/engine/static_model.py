@@ -27,7 +27,9 @@ Fused (:class:`StaticModel`):
   judged once: ``R3_static``;
 - a python-fcl BVH of R3_static (reused every cycle with the identity transform) and a
   voxel grid of where it is, so that per cycle a dynamic component can tell in O(1) whether
-  it touches a static one.
+  it touches a static one; where the voxels' slack matters, its triangles binned in a
+  uniform grid (built on first use) tell exactly which boxes meet its surface
+  (:meth:`StaticModel.boxes_meet`).
 """
 
 from __future__ import annotations
@@ -45,7 +47,6 @@ import fcl
 import manifold3d as m3
 import numpy as np
 from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from ..background import TaughtCamera
 from ..camera import Camera
@@ -65,8 +66,10 @@ from ..regions import (
     free_region_from_surface,
 )
 from ..typed import ArrayF32, ArrayF64
+from .boxes import TriangleGrid, groups_meet_triangles
 
 __all__ = [
+    "BOX_MEET_TOLERANCE",
     "CONSISTENT_BAND",
     "StaticCamera",
     "Sheet",
@@ -74,6 +77,11 @@ __all__ = [
     "TouchGrid",
     "remove_sheets",
 ]
+
+BOX_MEET_TOLERANCE = 1e-9
+"""Relative growth of the boxes of :meth:`StaticModel.boxes_meet` beyond their distance:
+1e-9 of the coordinates' magnitude [m] (6e-9 m at 6 m), millions of times a float64's
+rounding, so that a box touching the surface is never judged apart from it."""
 
 CONSISTENT_BAND = 1.5
 """Width of the static band in depth tolerances (1.5 tau = 4.5 sigma at 3 sigma)."""
@@ -762,11 +770,14 @@ class StaticModel:
 
         A grown box that does not meet it lies wholly outside R3_static, so everything in
         the box [lo, hi] is farther than ``distance`` from R3_static, or wholly inside it.
-        A vertex of R3_static's mesh in the grown box settles it at once (a k-d tree, by
-        the Chebyshev distance to the box's centre within its smallest half side); the
-        other boxes are tested with python-fcl (a solid box against the region's triangles,
-        so a box that holds a whole static component meets it too), until each group has
-        one that meets it.
+        Each grown box is tested exactly against the triangles of R3_static's mesh in the
+        grid cells it meets (:func:`polyhull.engine.boxes.groups_meet_triangles`: a solid
+        box against the triangles, so a box that holds a whole static component meets it
+        too), until each group has one that meets it. The boxes grow by a further
+        ``BOX_MEET_TOLERANCE`` (relative to the coordinates' magnitude) so that rounding
+        never turns a touching box into one that does not meet: the answer holds every box
+        that python-fcl's box-against-mesh collision finds meeting, and more only for
+        boxes within about ``BOX_MEET_TOLERANCE`` times the coordinates of the surface.
 
         Args:
             lo: (N, 3) box minima [m].
@@ -778,31 +789,21 @@ class StaticModel:
         out = np.zeros(n_groups, dtype=bool)
         lo = np.asarray(lo, dtype=np.float64).reshape(-1, 3)
         hi = np.asarray(hi, dtype=np.float64).reshape(-1, 3)
-        if self.bvh is None or len(lo) == 0:
+        grid = self._triangle_grid
+        if grid is None or len(lo) == 0:
             return out
         groups = np.zeros(len(lo), dtype=np.int64) if groups is None else np.asarray(groups, dtype=np.int64)
-        centre = 0.5 * (lo + hi)
-        half = 0.5 * (hi - lo) + distance
-        tree = self._vertex_tree
-        if tree is not None:
-            radius = half.min(axis=1)
-            gap, _ = tree.query(centre, k=1, p=np.inf, distance_upper_bound=float(radius.max()) * (1.0 + 1e-9))
-            out[groups[gap <= radius]] = True
-        request = fcl.CollisionRequest()
-        for i in range(len(lo)):
-            if out[groups[i]]:
-                continue
-            box = fcl.CollisionObject(fcl.Box(*(2.0 * half[i])), fcl.Transform(centre[i]))
-            if fcl.collide(box, self.bvh, request, fcl.CollisionResult()) > 0:
-                out[groups[i]] = True
-        return out
+        scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
+        grow = (distance + BOX_MEET_TOLERANCE * (1.0 + scale))[:, None]
+        return groups_meet_triangles(grid, lo - grow, hi + grow, groups, n_groups)
 
     @functools.cached_property
-    def _vertex_tree(self) -> cKDTree | None:
-        """A k-d tree of R3_static's mesh vertices (built on first use)."""
+    def _triangle_grid(self) -> TriangleGrid | None:
+        """R3_static's triangles in a uniform grid (built on first use), None when empty."""
         if self.region.is_empty():
             return None
-        return cKDTree(np.asarray(self.region.to_mesh64().vert_properties, dtype=np.float64)[:, :3])
+        vertices, triangles = _mesh(self.region)
+        return TriangleGrid.of(vertices, triangles)
 
     def hull_contains(self, points_world: ArrayF64, k_of_n: int = 1) -> np.ndarray:
         """(N,) whether points lie in C_static: fewer than k cameras' static surfaces free them.

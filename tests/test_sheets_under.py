@@ -1,0 +1,102 @@
+"""The sheet boxes under pieces that stand on a surface (dynamic_rules.sheets_under)
+against the rule written plainly with numpy, and against point sampling."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from polyhull.cellfile import load_cell
+from polyhull.distance import points_in_hexahedra
+from polyhull.engine.dynamic_rules import (
+    SHEET_STEP,
+    DynamicContext,
+    _crossing_pairs,
+    _sheet_runs,
+    box_vertices,
+    sheets_under,
+)
+from polyhull.engine.static_model import SHEET_PITCH, Sheet, _to_world
+
+SHEETS = (
+    Sheet("floor", axis=2, sign=1, level=0.0, lo=(-2.0, -2.0), hi=(2.0, 2.0), height=0.2),
+    Sheet("table +z", axis=2, sign=1, level=0.7, lo=(0.5, 0.5), hi=(1.3, 1.1), height=0.1),
+    Sheet("table +x", axis=0, sign=1, level=1.3, lo=(0.5, 0.0), hi=(1.1, 0.7), height=0.1),
+)
+
+
+def _context(heights: tuple[np.ndarray, ...]) -> DynamicContext:
+    cell = load_cell("fixtures/cells/small_cell.toml")
+    return DynamicContext.of(cell, SHEETS, None, heights)  # type: ignore[arg-type]  # no touch grid needed
+
+
+def _reference(vertices: np.ndarray, ctx: DynamicContext) -> np.ndarray:
+    """The rule with numpy, sheet by sheet (the engine's former implementation)."""
+    margin = ctx.params.floor_shell_margin
+    pairs, bounds = _crossing_pairs(vertices, ctx)
+    out = []
+    for k in np.unique(pairs[:, 1]):
+        sh, hmap = ctx.sheets[int(k)], ctx.sheet_heights[int(k)]
+        (x0, y0), (x1, y1) = sh.local_box()
+        sel = pairs[:, 1] == k
+        a = np.maximum(bounds[sel, :2] - margin, (x0, y0))
+        b = np.minimum(bounds[sel, 3:5] + margin, (x1, y1))
+        ok = np.all(b > a, axis=1)
+        a, b = a[ok], b[ok]
+        if len(a) == 0:
+            continue
+        origin = np.array([x0, y0])
+        ia = np.floor((a - origin) / SHEET_PITCH).astype(np.int64)
+        ib = np.ceil((b - origin) / SHEET_PITCH).astype(np.int64)
+        shape = ib.max(axis=0) + 1
+        occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
+        np.add.at(occ, (ia[:, 0], ia[:, 1]), 1)
+        np.add.at(occ, (ib[:, 0], ia[:, 1]), -1)
+        np.add.at(occ, (ia[:, 0], ib[:, 1]), -1)
+        np.add.at(occ, (ib[:, 0], ib[:, 1]), 1)
+        cells = occ.cumsum(0).cumsum(1)[:-1, :-1] > 0
+        col_h = np.full(cells.shape, sh.height)
+        n0, n1 = min(cells.shape[0], hmap.shape[0]), min(cells.shape[1], hmap.shape[1])
+        col_h[:n0, :n1] = hmap[:n0, :n1]
+        runs = _sheet_runs(cells, col_h, SHEET_STEP)
+        lo2 = np.minimum(origin + runs[:, 0:2] * SHEET_PITCH, (x1, y1))
+        hi2 = np.minimum(origin + runs[:, 2:4] * SHEET_PITCH, (x1, y1))
+        boxes = box_vertices(np.column_stack([lo2, np.zeros(len(lo2))]), np.column_stack([hi2, runs[:, 4]]))
+        W = _to_world(sh.to_local())
+        out.append(boxes @ W[:, :3].T + W[:, 3])
+    return np.concatenate(out) if out else np.zeros((0, 8, 3))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 40))
+def test_sheet_boxes_equal_the_plain_rule_and_hold_every_footprint(seed: int, n: int) -> None:
+    rng = np.random.default_rng(seed)
+    # height maps smaller than some sheets' grids (the sheet's height beyond them)
+    heights = tuple(rng.uniform(0.02, sh.height, size=(rng.integers(1, 30), rng.integers(1, 30))) for sh in SHEETS)
+    ctx = _context(heights)
+    # boxes standing on the floor or the table (crossing their sheets' tops), some apart
+    lo = np.column_stack([rng.uniform(-2.2, 1.8, n), rng.uniform(-2.2, 1.8, n), rng.uniform(-0.1, 0.9, n)])
+    hi = lo + rng.uniform(0.02, 0.6, size=(n, 3))
+    vertices = box_vertices(lo, hi)
+    got = sheets_under(vertices, ctx)
+    np.testing.assert_allclose(got, _reference(vertices, ctx), rtol=0, atol=1e-12)
+    # every point over a crossing piece's grown footprint, under the height map, is covered
+    pairs, bounds = _crossing_pairs(vertices, ctx)
+    margin = ctx.params.floor_shell_margin
+    for (_, k), b in zip(pairs, bounds, strict=True):
+        sh = SHEETS[k]
+        (x0, y0), (x1, y1) = sh.local_box()
+        a = np.maximum(b[:2] - margin, (x0, y0))
+        c = np.minimum(b[3:5] + margin, (x1, y1))
+        if not np.all(c > a):
+            continue
+        p = rng.uniform(a, c, size=(20, 2))
+        i = np.floor((p - (x0, y0)) / SHEET_PITCH).astype(int)
+        hmap = heights[k]
+        inside_map = (i[:, 0] < hmap.shape[0]) & (i[:, 1] < hmap.shape[1])
+        h = np.where(inside_map, hmap[np.minimum(i[:, 0], hmap.shape[0] - 1), np.minimum(i[:, 1], hmap.shape[1] - 1)], sh.height)
+        local = np.column_stack([p, rng.uniform(0.0, 1.0, 20) * h * (1 - 1e-9)])
+        W = _to_world(sh.to_local())
+        world = local @ W[:, :3].T + W[:, 3]
+        assert points_in_hexahedra(world, got).all()
