@@ -16,29 +16,26 @@ Two figures, because they answer different questions:
   ``GROWTH_LIMIT_MB``. This is the figure that grows without bound when something leaks.
 - **resident set size** (RSS), reported alongside: heap in use plus what glibc keeps after
   ``free`` (its arenas grow by fragmentation, in steps of 0.1 to 2 MB, and return memory to
-  the system only from their top) plus Python's own small-object arenas and the code.
+  the system only from their top) plus Python's own small-object arenas and the code; it
+  depends on how the threads' allocations interleave, so it varies from run to run.
 
-Measured on the reference workload (2-core machine, warm-up 300, then 500 to 2,700
-cycles): the RSS grew 0.8 to 6 MB per 1,000 cycles from run to run (the most under load)
-while the heap in use grew a steady 0.60 MB per 1,000 cycles (0.57 to 0.62 in every
-500-cycle window of a 3,000-cycle run; 0.66 under load): a leak, not the allocator. It is
-python-fcl's (0.7.0.11): ``CollisionObject.__dealloc__`` releases its C++ object with
-``free()`` instead of ``delete``, so the destructor never runs and the ``shared_ptr``
-control block of its geometry (32 bytes) stays allocated, once for every
-``CollisionObject`` ever made. The engine made 17.6 a cycle (15.4 boxes in
-``StaticModel.boxes_meet``, 2.2 dynamic-region BVHs in ``polyhull.distance``): 0.54 MB per
-1,000 cycles. With ``boxes_meet`` changed to reuse one box object per call (measured on a
-copy of the engine; the same answers on every call, compared) the heap in use grew 0.11 MB
-per 1,000 cycles (0.17 under load): about 3 objects a cycle remain, which only python-fcl
-can free (its API cannot give an existing object new geometry). In a 3,000-cycle run of that
-copy the RSS growth died away (0.92 MB per 1,000 cycles over the first 500 measured cycles,
-0.05 over the last 500) and glibc's free bytes stayed between 19.7 and 20.7 MB.
-The rest of the RSS growth is memory glibc keeps after ``free``: over 2,700 cycles its free
-bytes stayed between 18.7 and 19.8 MB while the heap it holds grew with the leak;
-``malloc_trim(0)`` every 10 cycles took the RSS down by 8 to 17 MB each time, and
-``MALLOC_ARENA_MAX=1`` (no per-thread arenas) changed neither figure (heap in use 0.60, RSS
-1.1 MB per 1,000 cycles). Python's allocated-block count rose by ~2 blocks a cycle and
-stopped rising after ~2,000 cycles.
+Measured on the reference workload (2-core machine shared with other runs, warm-up 300,
+then 500 to 2,700 cycles). The heap in use grows a steady 0.045 MB per 1,000 cycles; it is
+python-fcl's (0.7.0.11) leak: ``CollisionObject.__dealloc__`` releases its C++ object with
+``free()`` instead of ``delete``, so the destructor never runs and the ``shared_ptr`` control
+block of its geometry (32 bytes) stays allocated, once for every ``CollisionObject`` ever
+made; ``polyhull.distance`` makes 1.35 a cycle for the dynamic region's BVHs (0.043 MB per
+1,000 cycles), and python-fcl's API cannot give an existing object new geometry. Before
+``StaticModel.boxes_meet`` became a compiled test it made 15.4 python-fcl boxes a cycle
+besides, and the heap in use grew 0.60 MB per 1,000 cycles (0.57 to 0.62 in every 500-cycle
+window of a 3,000-cycle run; with those boxes reusing one object, on a copy of that engine,
+0.11), while the RSS grew 0.8 to 6 MB per 1,000 cycles from run to run: the RSS alone could
+not tell that leak from the allocator. The rest of the RSS growth is memory glibc keeps after
+``free``, and it levels off: in 2,700 measured cycles the RSS grew 2.1 MB per 1,000 cycles over
+the first 500, then 0.45, 0.28, 0.41 and 0, and glibc's free bytes stayed between 19.4 and
+20.8 MB; ``malloc_trim(0)`` every 10 cycles took the RSS down by 8 to 17 MB each time, and
+``MALLOC_ARENA_MAX=1`` (no per-thread arenas) changed neither figure. Python's
+allocated-block count rose by ~2 blocks a cycle and stopped rising after ~2,000 cycles.
 
 Without glibc's ``mallinfo2`` (other C libraries) the heap is not measured and the verdict
 falls back to the RSS slope against ``RSS_GROWTH_LIMIT_MB``, saying so.
