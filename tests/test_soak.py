@@ -1,17 +1,29 @@
-"""polyhull soak: the ring's replay order, the growth slope, a few cycles on the small cell
-(its JSON fields and text lines) and the rejection of bad flag values. No timing assertions."""
+"""polyhull soak: the ring's replay order, the growth slope, the heap sampler (it sees a
+block allocated and freed), a few cycles on the small cell (its JSON fields and text lines,
+the verdict on the heap in use, the RSS verdict without a heap sampler) and the rejection of
+bad flag values. No timing assertions."""
 
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import io
 import json
+import math
 
 import pytest
 from conftest import SMALL_CELL
 
 from polyhull.cli import main
-from polyhull.commands.soak import GROWTH_LIMIT_MB, growth_per_1000, ring_order
+from polyhull.commands.soak import (
+    GROWTH_LIMIT_MB,
+    RSS_GROWTH_LIMIT_MB,
+    HeapSample,
+    growth_per_1000,
+    heap_reader,
+    ring_order,
+    run_soak,
+)
 
 SMALL = ("--cell", str(SMALL_CELL), "--cycles", "4", "--warmup", "1", "--ring", "3")
 
@@ -40,6 +52,28 @@ def test_growth_is_the_least_squares_slope() -> None:
     assert growth_per_1000(cycles, [900 * mb] * len(cycles)) == pytest.approx(0.0, abs=1e-9)
 
 
+def test_heap_reader_sees_a_block_allocated_and_freed() -> None:
+    heap = heap_reader()
+    if heap is None:
+        pytest.skip("no glibc mallinfo2 here")
+    libc = ctypes.CDLL(None)
+    libc.malloc.restype = ctypes.c_void_p
+    libc.malloc.argtypes = [ctypes.c_size_t]
+    libc.free.argtypes = [ctypes.c_void_p]
+    # above glibc's largest mmap threshold (32 MB): a block of its own, in use and held
+    size = 64 * 1024 * 1024
+    before = heap()
+    block = libc.malloc(size)
+    assert block
+    during = heap()
+    libc.free(block)
+    after = heap()
+    assert during.in_use - before.in_use >= size
+    assert during.held - before.held >= size
+    assert during.held >= during.in_use
+    assert during.in_use - after.in_use >= size
+
+
 @pytest.fixture(scope="module")
 def soak_json() -> tuple[int, dict]:  # type: ignore[type-arg]
     """One small --json run (stdout must hold one JSON object and nothing else)."""
@@ -57,8 +91,21 @@ def test_soak_json_fields(soak_json: tuple[int, dict]) -> None:  # type: ignore[
     assert rss["end_minus_start"] == pytest.approx(rss["end"] - rss["start"])
     assert [c for c, _ in rss["trace"]] == [1, 4]  # the first and the last measured cycle
     assert rss["trace"][0][1] == rss["start"] and rss["trace"][-1][1] == rss["end"]
-    assert result["growth_limit_mb_per_1000_cycles"] == GROWTH_LIMIT_MB
-    assert result["memory_flat"] == (result["growth_mb_per_1000_cycles"] < GROWTH_LIMIT_MB)
+    assert math.isfinite(rss["growth_per_1000_cycles"])
+    heap = result["heap_mb"]
+    if heap_reader() is not None:  # glibc: the verdict is the heap in use's
+        assert result["judged"] == "heap in use"
+        assert result["growth_limit_mb_per_1000_cycles"] == GROWTH_LIMIT_MB
+        assert result["growth_mb_per_1000_cycles"] == heap["in_use"]["growth_per_1000_cycles"]
+        for c, in_use, held in heap["trace"]:
+            assert 1 <= c <= 4 and 0 < in_use <= held
+        # the RSS holds the heap in use (with the code and Python's own arenas besides)
+        assert heap["in_use"]["start"] < rss["start"] and heap["in_use"]["end"] < rss["end"]
+    else:
+        assert heap is None and result["judged"] == "RSS"
+    assert result["memory_flat"] == (
+        result["growth_mb_per_1000_cycles"] < result["growth_limit_mb_per_1000_cycles"]
+    )
     assert code == (0 if result["memory_flat"] else 1)  # the exit code follows the verdict
     c = result["cycle_ms"]
     assert 0 < c["p50"] <= c["p99"] <= c["max"]
@@ -78,8 +125,31 @@ def test_soak_text_output() -> None:
     lines = out.splitlines()
     assert lines[0].startswith("polyhull soak: 2 cameras, 4 cycles after 1 warm-up, ring of 3")
     assert any(line.startswith("RSS: ") and "per 1,000 cycles" in line for line in lines)
+    if heap_reader() is not None:
+        assert any(line.startswith("heap in use: ") and f"(limit {GROWTH_LIMIT_MB:g})" in line for line in lines)
     assert any(line.startswith("cycle [ms]: p50 ") for line in lines)
     assert "faults: none" in lines or "faults (cycles with it, first cycle):" in lines
+
+
+def test_without_a_heap_sampler_the_rss_is_judged() -> None:
+    result = run_soak(SMALL_CELL, cycles=3, warmup=1, ring=3, heap=None)
+    assert result["heap_mb"] is None and result["judged"] == "RSS"
+    assert result["growth_limit_mb_per_1000_cycles"] == RSS_GROWTH_LIMIT_MB
+    assert result["growth_mb_per_1000_cycles"] == result["rss_mb"]["growth_per_1000_cycles"]
+
+
+def test_a_growing_heap_is_not_flat() -> None:
+    """A heap sampler that reports 1 kB more every cycle (1 MB per 1,000 cycles): not flat."""
+    grown = iter(range(0, 10**9, 1024))
+
+    def growing() -> HeapSample:
+        n = 900 * 1024 * 1024 + next(grown)
+        return HeapSample(n, n + 4096)
+
+    result = run_soak(SMALL_CELL, cycles=3, warmup=1, ring=3, heap=growing)
+    assert result["judged"] == "heap in use"
+    assert result["growth_mb_per_1000_cycles"] == pytest.approx(1000 * 1024 / (1024 * 1024))
+    assert result["memory_flat"] is False
 
 
 @pytest.mark.parametrize(
