@@ -60,7 +60,10 @@ def test_heap_reader_sees_a_block_allocated_and_freed() -> None:
     libc.malloc.restype = ctypes.c_void_p
     libc.malloc.argtypes = [ctypes.c_size_t]
     libc.free.argtypes = [ctypes.c_void_p]
-    # above glibc's largest mmap threshold (32 MB): a block of its own, in use and held
+    # Counted in use while allocated, and no longer once freed. Whether it adds to what
+    # glibc holds depends on what ran before: a free chunk that large in an arena serves it
+    # without a new mapping (it did after the whole test suite), so only "held >= in use"
+    # is asserted of the held bytes.
     size = 64 * 1024 * 1024
     before = heap()
     block = libc.malloc(size)
@@ -69,8 +72,7 @@ def test_heap_reader_sees_a_block_allocated_and_freed() -> None:
     libc.free(block)
     after = heap()
     assert during.in_use - before.in_use >= size
-    assert during.held - before.held >= size
-    assert during.held >= during.in_use
+    assert during.held >= during.in_use and before.held >= before.in_use
     assert during.in_use - after.in_use >= size
 
 
