@@ -3,11 +3,12 @@
 Robot links are FCL BVH models built once in their link frames; each cycle only their
 transforms change. The region has two parts:
 
-- the static region R3_static: one BVH built when the monitor is built, reused every cycle
-  (its transform is the identity);
-- the dynamic part: convex hexahedra (N, 8, 3). Only the pieces whose bounding sphere can
-  come nearer to a link than the best distance found so far go into a small BVH built for
-  the cycle.
+- the static region R3_static: BVHs of its 0.5 m chunks (:class:`ChunkedMesh`), built when
+  the monitor is built and reused every cycle (their transform is the identity), with each
+  link's distance reused while its motion bounds the change (:class:`StaticDistance`);
+- the dynamic part: convex hexahedra (N, 8, 3). Only the pieces whose lower bound (from
+  the links' balls and boxes) can come nearer to a link than the best distance found so
+  far go into small BVHs built for the cycle, nearest first.
 
 FCL returns -1 or 0 for objects in collision and its witness points are unreliable there,
 so a distance <= 0 is contact, and a fresh ``DistanceResult`` is built for every query.
