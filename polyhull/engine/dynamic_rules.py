@@ -216,11 +216,12 @@ def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF
     return np.sqrt((d * d).sum(axis=2))
 
 
-def _in_shell(points: ArrayF64, ctx: DynamicContext) -> np.ndarray:
-    """(N,) whether each point lies within ``shell_thickness`` of a known object."""
+def _in_shell(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
+    """(N,) whether every vertex of each piece (N, K, 3) lies within ``shell_thickness`` of
+    a known object."""
     t = ctx.params.shell_thickness
-    inside = np.zeros(len(points), dtype=bool)
-    if len(points) == 0:
+    inside = np.zeros(len(vertices), dtype=bool)
+    if len(vertices) == 0:
         return inside
     boxes = np.array([np.concatenate([lo, hi]) for lo, hi in ctx.obstacle_boxes], dtype=np.float64).reshape(-1, 6)
     planes = list(ctx.robot_shell_planes)
@@ -228,42 +229,51 @@ def _in_shell(points: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     counts = np.array([len(p) for p in planes[: len(spheres)]], dtype=np.int64)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     flat = np.concatenate(planes[: len(spheres)]).reshape(-1, 4) if len(spheres) else np.zeros((0, 4))
-    _shell_kernel(np.ascontiguousarray(points, dtype=np.float64), boxes, float(t), spheres, np.ascontiguousarray(flat, dtype=np.float64), offsets, inside)
+    _shell_kernel(np.ascontiguousarray(vertices, dtype=np.float64), boxes, float(t), spheres, np.ascontiguousarray(flat, dtype=np.float64), offsets, inside)
     return inside
 
 
 @nb.njit(cache=True, nogil=True)
-def _shell_kernel(points, boxes, t, spheres, planes, offsets, out):  # pragma: no cover - compiled
-    """Within ``t`` of an obstacle box (exact point-to-box distance) or inside a robot
-    piece's shell polytope (its planes, tested only within its sphere grown by ``t``)."""
-    tt = t * t
-    for i in range(points.shape[0]):
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        hit = False
-        for b in range(boxes.shape[0]):
-            dx = max(0.0, max(boxes[b, 0] - x, x - boxes[b, 3]))
-            dy = max(0.0, max(boxes[b, 1] - y, y - boxes[b, 4]))
-            dz = max(0.0, max(boxes[b, 2] - z, z - boxes[b, 5]))
-            if dx * dx + dy * dy + dz * dz <= tt:
-                hit = True
+def _shell_kernel(vertices, boxes, t, spheres, planes, offsets, out):  # pragma: no cover - compiled
+    """Whether every vertex of each piece is within ``t`` of an obstacle box (exact
+    point-to-box distance) or inside a robot piece's shell polytope (its planes, tested
+    only within its sphere grown by ``t``); a piece's test stops at its first vertex in no
+    shell."""
+    for n in range(vertices.shape[0]):
+        all_in = True
+        for k in range(vertices.shape[1]):
+            if not _point_in_shell(vertices[n, k, 0], vertices[n, k, 1], vertices[n, k, 2], boxes, t, spheres, planes, offsets):
+                all_in = False
                 break
-        if not hit:
-            for s in range(spheres.shape[0]):
-                dx = x - spheres[s, 0]
-                dy = y - spheres[s, 1]
-                dz = z - spheres[s, 2]
-                r = spheres[s, 3] + t
-                if dx * dx + dy * dy + dz * dz > r * r:
-                    continue
-                ok = True
-                for f in range(offsets[s], offsets[s + 1]):
-                    if x * planes[f, 0] + y * planes[f, 1] + z * planes[f, 2] > planes[f, 3]:
-                        ok = False
-                        break
-                if ok:
-                    hit = True
-                    break
-        out[i] = hit
+        out[n] = all_in
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _point_in_shell(x, y, z, boxes, t, spheres, planes, offsets):  # pragma: no cover - compiled
+    """Whether point (x, y, z) is within ``t`` of an obstacle box or inside a robot piece's
+    shell polytope."""
+    tt = t * t
+    for b in range(boxes.shape[0]):
+        dx = max(0.0, max(boxes[b, 0] - x, x - boxes[b, 3]))
+        dy = max(0.0, max(boxes[b, 1] - y, y - boxes[b, 4]))
+        dz = max(0.0, max(boxes[b, 2] - z, z - boxes[b, 5]))
+        if dx * dx + dy * dy + dz * dz <= tt:
+            return True
+    for s in range(spheres.shape[0]):
+        dx = x - spheres[s, 0]
+        dy = y - spheres[s, 1]
+        dz = z - spheres[s, 2]
+        r = spheres[s, 3] + t
+        if dx * dx + dy * dy + dz * dz > r * r:
+            continue
+        ok = True
+        for f in range(offsets[s], offsets[s + 1]):
+            if x * planes[f, 0] + y * planes[f, 1] + z * planes[f, 2] > planes[f, 3]:
+                ok = False
+                break
+        if ok:
+            return True
+    return False
 
 
 class _SheetArrays(NamedTuple):
@@ -398,9 +408,7 @@ def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray
 def in_shells(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     """(N,) whether each piece lies in a shell around a known object or inside a noise
     sheet (the ``too_thin`` rule's shells)."""
-    n = vertices.shape[0]
-    inside = np.asarray(_in_shell(vertices.reshape(-1, 3), ctx).reshape(n, 8).all(axis=1))
-    return inside | _in_sheets(vertices, ctx)
+    return _in_shell(vertices, ctx) | _in_sheets(vertices, ctx)
 
 
 def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: DynamicContext) -> np.ndarray:
