@@ -284,7 +284,8 @@ def refine_kept(
             # removes such pieces, so a piece once cut stays cut)
             lo, hi = vertex_bounds(kept.vertices)
             test = inside & ~cut & ((flags & SPARED) == 0)
-            test[:n_rest] &= any_overlap(lo[:n_rest], hi[:n_rest], changed_lo - margin, changed_hi + margin)
+            old = np.nonzero(test[:n_rest])[0]  # only those that can be cut ask
+            test[old] = any_overlap(lo[old], hi[old], changed_lo - margin, changed_hi + margin)
             if test.any():
                 keepers = ~inside
                 cut[test] = ~any_overlap(lo[test], hi[test], lo[keepers] - margin, hi[keepers] + margin)
