@@ -287,8 +287,6 @@ class RobotDistanceModel:
             order = np.concatenate([[first], order[order != first]])
         for j in order:
             if gap[j] >= best:
-                if j == first:
-                    continue
                 break
             d, pts = self._query(chunks.objects[int(j)], name, T)
             if d <= 0.0:
