@@ -169,8 +169,9 @@ class RobotRaster:
 def _raster(pc, faces, W, H, near, zbuf, zback, rect):  # pragma: no cover - compiled
     """Rasterise convex polygon faces (``faces`` (F, P) indices into the camera-frame,
     pre-scaled vertices ``pc``, -1 padded) into ``zbuf`` (a lower bound of the nearest
-    depth) and ``zback`` (an upper bound of the farthest depth); grow ``rect`` (u0, u1, v0,
-    v1) to hold every pixel written.
+    depth) and ``zback`` (an upper bound of the farthest depth), both stored as ``w = -1/z``
+    (monotonic in z: :func:`_finish` divides once a pixel, not once a face and pixel);
+    grow ``rect`` (u0, u1, v0, v1) to hold every pixel written.
 
     A ray through a convex piece enters through a face turned towards the camera and
     leaves through one turned away, so front faces write only ``zbuf`` and back faces only
@@ -283,56 +284,116 @@ def _raster(pc, faces, W, H, near, zbuf, zback, rect):  # pragma: no cover - com
             ny[j] = (us[jn] - us[j]) * sgn
             kk[j] = -nx[j] * us[j] - ny[j] * vs[j] + re * (abs(nx[j]) + abs(ny[j]))
         for v in range(pv0, pv1 + 1):
-            a = float(pu0)
-            b = float(pu1)
-            if planar:
-                # the row's interval from the half-planes
+            lo = W
+            hi = -1
+            if not planar:
+                # the nearest and farthest vertex everywhere (wmin < 0: no vertex behind)
+                if mode != 2:
+                    _row_min_const(zbuf[v], pu0, pu1, wmin)
+                if mode != 1:
+                    _row_max_const(zback[v], pu0, pu1, wmax)
+                lo, hi = pu0, pu1
+            else:
+                # the row's pixels: those passing every edge's test, an interval of u per
+                # edge (the test is monotonic in u, also in floating point); each bound is
+                # found from the threshold and moved until the test itself agrees
+                a = pu0
+                b = pu1
                 for j in range(m):
-                    c = ny[j] * v + kk[j]
                     if nx[j] > 0.0:
-                        a = max(a, np.floor(-c / nx[j]) - 1.0)
+                        a = max(a, _first_in(nx[j], ny[j], kk[j], v, pu0, pu1))
                     elif nx[j] < 0.0:
-                        b = min(b, np.ceil(-c / nx[j]) + 1.0)
-                    elif c < 0.0:
-                        b = a - 1.0
-                if not a <= b:  # (NaN-safe)
+                        b = min(b, _last_in(nx[j], ny[j], kk[j], v, pu0, pu1))
+                    elif ny[j] * v + kk[j] < 0.0 or not ny[j] * v + kk[j] >= 0.0:
+                        b = a - 1
+                if a > b:
                     continue
-            ia, ib = int(a), int(b)
-            for u in range(ia, ib + 1):
-                if planar:
-                    # the interval is each half-plane's threshold widened by one pixel: the
-                    # pixels two or more inside both ends pass every half-plane
-                    if u < ia + 3 or u > ib - 3:
-                        out = False
-                        for j in range(m):
-                            if nx[j] * u + ny[j] * v + kk[j] < 0.0:
-                                out = True
-                                break
-                        if out:
-                            continue
-                    wc = A * u + Bc * v + C
-                    wb = max(wc - spread, wmin)
-                    wf = min(wc + spread, wmax)
-                else:
-                    wb = wmin
-                    wf = wmax
-                if mode != 2 and wb < 0.0:
-                    z = max(-1.0 / wb, near)
-                    if z < zbuf[v, u]:
-                        zbuf[v, u] = z
-                if mode != 1 and wb < 0.0:
-                    zf = -1.0 / wf if wf < 0.0 else np.inf
-                    if zf > zback[v, u]:
-                        zback[v, u] = zf
-                if wb < 0.0:
-                    if u < rect[0]:
-                        rect[0] = u
-                    if u > rect[1]:
-                        rect[1] = u
-                    if v < rect[2]:
-                        rect[2] = v
-                    if v > rect[3]:
-                        rect[3] = v
+                Bv = Bc * v
+                # branch-free (vectorised) spans; wb < 0 (written) over an interval of u,
+                # as wb - wmin is monotonic in u
+                if mode != 2:
+                    _row_min(zbuf[v], a, b, A, Bv, C, spread, wmin)
+                if mode != 1:
+                    _row_max(zback[v], a, b, A, Bv, C, spread, wmin, wmax)
+                for u in range(a, b + 1):
+                    if max(A * u + Bv + C - spread, wmin) < 0.0:
+                        lo = u
+                        break
+                for u in range(b, a - 1, -1):
+                    if max(A * u + Bv + C - spread, wmin) < 0.0:
+                        hi = u
+                        break
+            if hi >= 0:
+                if lo < rect[0]:
+                    rect[0] = lo
+                if hi > rect[1]:
+                    rect[1] = hi
+                if v < rect[2]:
+                    rect[2] = v
+                if v > rect[3]:
+                    rect[3] = v
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _first_in(nx, ny, k, v, u0, u1):  # pragma: no cover - compiled
+    """The least u in [u0, u1 + 1] with ``nx u + ny v + k >= 0`` (nx > 0; u1 + 1: none;
+    NaN: none)."""
+    t = -(ny * v + k) / nx
+    if not t == t:
+        return u1 + 1
+    u = int(min(max(np.ceil(t), u0), u1 + 1))
+    while u > u0 and nx * (u - 1) + ny * v + k >= 0.0:
+        u -= 1
+    while u <= u1 and not nx * u + ny * v + k >= 0.0:
+        u += 1
+    return u
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _last_in(nx, ny, k, v, u0, u1):  # pragma: no cover - compiled
+    """The greatest u in [u0 - 1, u1] with ``nx u + ny v + k >= 0`` (nx < 0; u0 - 1: none;
+    NaN: none)."""
+    t = -(ny * v + k) / nx
+    if not t == t:
+        return u0 - 1
+    u = int(min(max(np.floor(t), u0 - 1), u1))
+    while u < u1 and nx * (u + 1) + ny * v + k >= 0.0:
+        u += 1
+    while u >= u0 and not nx * u + ny * v + k >= 0.0:
+        u -= 1
+    return u
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_min(row, a, b, A, Bv, C, spread, wmin):  # pragma: no cover - compiled
+    """``row[u] = min(row[u], wb(u))`` for u in [a, b] where ``wb < 0``."""
+    for u in range(a, b + 1):
+        wb = max(A * u + Bv + C - spread, wmin)
+        x = wb if wb < 0.0 else np.inf
+        row[u] = min(row[u], x)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_max(row, a, b, A, Bv, C, spread, wmin, wmax):  # pragma: no cover - compiled
+    """``row[u] = max(row[u], wf(u))`` for u in [a, b] where ``wb < 0``."""
+    for u in range(a, b + 1):
+        wc = A * u + Bv + C
+        wb = max(wc - spread, wmin)
+        wf = min(wc + spread, wmax)
+        x = wf if wb < 0.0 else -np.inf
+        row[u] = max(row[u], x)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_min_const(row, a, b, x):  # pragma: no cover - compiled
+    for u in range(a, b + 1):
+        row[u] = min(row[u], x)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_max_const(row, a, b, x):  # pragma: no cover - compiled
+    for u in range(a, b + 1):
+        row[u] = max(row[u], x)
 
 
 class RasterBuffers:
@@ -430,28 +491,41 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front,
     square that meets a piece enters through a front face and leaves through a back face,
     whose (superset) half-plane tests both pass, so only pixels no ray hits are left out
     (the per-edge tests pass a few of those near a face's sharp corners)."""
-    ninf = np.float32(-np.inf)
-    pinf = np.float32(np.inf)
+    # a float32 one step towards 0 or infinity, by its bits (np.nextafter is a libm call:
+    # three a pixel cost ~20 ns); every value rounded here is positive and finite
+    bits_f = np.empty(1, dtype=np.float32)
+    bits_i = bits_f.view(np.int32)
     for v in range(v0, v1 + 1):
         for u in range(u0, u1 + 1):
-            z = zbuf[v, u]
-            zb = zback[v, u]
-            zbuf[v, u] = np.inf
-            zback[v, u] = -np.inf
-            if z == np.inf or zb == -np.inf:
+            wn = zbuf[v, u]
+            wx = zback[v, u]
+            if wn == np.inf:
+                if wx != -np.inf:
+                    zback[v, u] = -np.inf
                 continue
+            zbuf[v, u] = np.inf
+            if wx == -np.inf:
+                continue
+            zback[v, u] = -np.inf
+            z = max(-1.0 / wn, near)
+            zb = -1.0 / wx if wx < 0.0 else np.inf
             covered[v, u] = True
-            f = np.float32(z)
-            if f > z:
-                f = np.nextafter(f, ninf)
-            front[v, u] = f
-            b = np.float32(zb)
-            if b < zb:
-                b = np.nextafter(b, pinf)
-            back[v, u] = b
+            front[v, u] = _round32(z, -1, bits_f, bits_i)
+            back[v, u] = _round32(zb, 1, bits_f, bits_i)
             tau = max(a * z * z, tmin)
             s = max(z - max(0.0, 2.0 * tau - padding), near)
-            s32 = np.float32(s)
-            if s32 > s:
-                s32 = np.nextafter(s32, ninf)
-            start[v, u] = s32
+            start[v, u] = _round32(s, -1, bits_f, bits_i)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _round32(x, direction, bits_f, bits_i):  # pragma: no cover - compiled
+    """``x`` as a float32 rounded down (``direction`` -1) or up (+1); ``bits_f`` and
+    ``bits_i`` are a 1-element float32 array and its int32 view (scratch)."""
+    f = np.float32(x)
+    if (direction < 0 and f > x) or (direction > 0 and f < x):
+        if f > 0.0 and f < np.inf:
+            bits_f[0] = f
+            bits_i[0] += direction
+            return bits_f[0]
+        return np.nextafter(f, np.float32(direction * np.inf))
+    return f
