@@ -69,6 +69,7 @@ from .engine.pixels import (
     box_rects,
     classify_frame,
     memory_segments,
+    prepare_static,
     small_gap_pixels,
     tile_segments,
     window_range,
@@ -354,6 +355,10 @@ class Monitor:
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
+        self._static_classes = [
+            prepare_static(s.lower, s.upper, s.free_static, c.near)
+            for c, s in zip(cell.cameras, self.static.cameras, strict=True)
+        ]
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
         self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
@@ -919,6 +924,7 @@ class Monitor:
             is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
             tile=cell.reconstruction.tile,
             shadow_rect=(0, -1, 0, -1) if raster is None or raster.rect is None else raster.rect,
+            static=self._static_classes[i],
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:

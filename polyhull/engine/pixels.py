@@ -27,7 +27,9 @@ from ..typed import ArrayF32
 
 __all__ = [
     "PixelClasses",
+    "StaticClasses",
     "classify_frame",
+    "prepare_static",
     "pyramid_layout",
     "build_pyramid",
     "tile_segments",
@@ -64,64 +66,109 @@ class PixelClasses(NamedTuple):
     tiles: np.ndarray
 
 
+class StaticClasses(NamedTuple):
+    """What one camera's pixel classification can know before any frame
+    (:func:`prepare_static`).
+
+    Attributes:
+        free0: (H, W) the free depth of a pixel whose reading is static: ``f_s``, or the
+            near range (rounded down) where ``f_s <= near``.
+        lower: (H, W) the band's lower bound T, -inf where ``f_s <= near`` (such a pixel
+            frees the near range whatever it reads).
+        upper: (H, W) the band's upper bound U, +inf where ``f_s <= near``.
+        seen: Number of pixels with ``f_s > near`` (that see the empty cell within range).
+    """
+
+    free0: ArrayF32
+    lower: ArrayF32
+    upper: ArrayF32
+    seen: int
+
+
+def prepare_static(lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near: float) -> StaticClasses:
+    """The frame-independent part of :func:`classify_frame` for one camera."""
+    fs = np.asarray(free_static, dtype=np.float32)
+    inside = fs.astype(np.float64) <= float(near)
+    near32 = np.float32(near)
+    if float(near32) > float(near):
+        near32 = np.nextafter(near32, np.float32(-np.inf))
+    free0 = np.where(inside, near32, fs).astype(np.float32)
+    lo = np.where(inside, -np.inf, lower).astype(np.float32)
+    hi = np.where(inside, np.inf, upper).astype(np.float32)
+    return StaticClasses(free0, lo, hi, int((~inside).sum()))
+
+
+CHUNK = 16
+"""Pixels of a row tested together for a non-static reading (a branch-free, vectorised
+test); a chunk holding one is classified pixel by pixel."""
+
+
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
+def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
+    """The free depth and segment ends start as the static ones (copies); only the
+    chunks of pixels holding a reading outside the band (``T``/``U`` of
+    :class:`StaticClasses`: every reading is "in the band" where ``f_s <= near``, except
+    NaN) are classified pixel by pixel. A static pixel frees ``free0`` and its segment
+    (to ``f_s``, or to the robot's shadow start) is empty."""
     H, W = depth.shape
     out_tiles[:, :] = False
     su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
     n_far = 0
-    n_seen = 0
     n_seg = 0
     for v in range(H):
-        for u in range(W):
-            f_s = np.float64(fs[v, u])
-            d = np.float64(depth[v, u])
-            if f_s <= near:
-                free = near
-            elif d >= T[v, u] and d <= U[v, u]:
-                n_seen += 1
-                free = f_s
-            else:
-                n_seen += 1
-                b = min(np.float64(B[v, u]), far)
-                usable = True
-                if d == np.inf:
-                    de = far
-                elif d >= near and d <= far:
-                    de = d
-                else:  # 0, NaN, -inf, out of range: unknown, nothing free
-                    usable = False
-                    de = near
-                if not usable:
-                    n_invalid += 1
-                    out_invalid[v, u] = True
-                    f = near
-                elif is_color:
-                    f = near if de < T[v, u] else f_s
+        out_free[v, :] = free0[v, :]
+        out_end[v, :] = fs[v, :]
+        if sv0 <= v <= sv1:  # the shadow image is +inf outside the rectangle
+            for u in range(su0, su1 + 1):
+                out_end[v, u] = min(fs[v, u], shadow[v, u])
+        for c0 in range(0, W, CHUNK):
+            c1 = min(c0 + CHUNK, W)
+            hit = False
+            for u in range(c0, c1):
+                d = depth[v, u]
+                hit |= not (d >= T[v, u] and d <= U[v, u])
+            if not hit:
+                continue
+            for u in range(c0, c1):
+                d = np.float64(depth[v, u])
+                if d >= T[v, u] and d <= U[v, u]:
+                    continue
+                f_s = np.float64(fs[v, u])
+                if f_s <= near:
+                    free = near
                 else:
-                    t = max(a * de * de, tmin)
-                    f = min(de, b) - t
-                if usable and d > U[v, u] and d != np.inf:
-                    n_far += 1
-                free = min(max(f, near), f_s)
-            end = f_s
-            if su0 <= u <= su1 and sv0 <= v <= sv1:  # the shadow image is +inf elsewhere
-                end = min(f_s, np.float64(shadow[v, u]))
-            # float32 storage rounds toward the camera (free) and away from it (end):
-            # the segment only grows.
-            fr = np.float32(free)
-            if fr > free:
-                fr = np.nextafter(fr, np.float32(-np.inf))
-            en = np.float32(end)
-            if en < end:
-                en = np.nextafter(en, np.float32(np.inf))
-            out_free[v, u] = fr
-            out_end[v, u] = en
-            if fr < en:
-                n_seg += 1
-                out_tiles[v // tile, u // tile] = True
-    return n_seg, n_invalid, n_far, n_seen
+                    b = min(np.float64(B[v, u]), far)
+                    usable = True
+                    if d == np.inf:
+                        de = far
+                    elif d >= near and d <= far:
+                        de = d
+                    else:  # 0, NaN, -inf, out of range: unknown, nothing free
+                        usable = False
+                        de = near
+                    if not usable:
+                        n_invalid += 1
+                        out_invalid[v, u] = True
+                        f = near
+                    elif is_color:
+                        f = near if de < T[v, u] else f_s
+                    else:
+                        t = max(a * de * de, tmin)
+                        f = min(de, b) - t
+                    if usable and d > U[v, u] and d != np.inf:
+                        n_far += 1
+                    free = min(max(f, near), f_s)
+                end = np.float64(out_end[v, u])  # f_s, or the shadow start when nearer
+                # float32 storage rounds toward the camera (free): the segment only grows
+                fr = np.float32(free)
+                if fr > free:
+                    fr = np.nextafter(fr, np.float32(-np.inf))
+                out_free[v, u] = fr
+                if fr < end:
+                    n_seg += 1
+                    out_tiles[v // tile, u // tile] = True
+    return n_seg, n_invalid, n_far
 
 
 def classify_frame(
@@ -141,6 +188,7 @@ def classify_frame(
     out_end: ArrayF32 | None = None,
     tile: int = 8,
     shadow_rect: tuple[int, int, int, int] | None = None,
+    static: StaticClasses | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -161,8 +209,12 @@ def classify_frame(
         tile: Edge [px] of the tiles of :attr:`PixelClasses.tiles`.
         shadow_rect: (u0, u1, v0, v1) inclusive rectangle outside which ``shadow_start`` is
             +inf (not read there); None: the whole image.
+        static: :func:`prepare_static` of ``lower``, ``upper``, ``free_static`` and
+            ``near`` (made here when None; a monitor makes it once).
     """
     H, W = free_static.shape
+    if static is None:
+        static = prepare_static(lower, upper, free_static, near)
     if out_free is None:
         out_free = np.empty((H, W), dtype=np.float32)
     if out_end is None:
@@ -171,12 +223,12 @@ def classify_frame(
     tile = int(tile)
     rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
-    n_seg, n_invalid, n_far, n_seen = _classify(
-        depth, reference, lower, upper, free_static, shadow_start, rect,
+    n_seg, n_invalid, n_far = _classify(
+        depth, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
         tile, out_tiles,
     )
-    seen = max(int(n_seen), 1)
+    seen = max(static.seen, 1)
     return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen, out_tiles)
 
 
