@@ -66,6 +66,8 @@ from .engine.pieces import (
     vertex_bounds,
 )
 from .engine.pixels import (
+    PixelBuffers,
+    StaticClasses,
     box_rects,
     classify_frame,
     memory_segments,
@@ -343,7 +345,13 @@ class Monitor:
         # a cycle's images (held by its verdict and last_images) and its rasters (held by
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
         # one pair per camera, are left reset after each use
-        self._image_pool: _Pool[_CycleBuffers] = _Pool(lambda: _CycleBuffers(self._stack))
+        self._static_classes = [
+            prepare_static(s.lower, s.upper, s.free_static, c.near)
+            for c, s in zip(cell.cameras, self.static.cameras, strict=True)
+        ]
+        self._image_pool: _Pool[_CycleBuffers] = _Pool(
+            lambda: _CycleBuffers(self._stack, self._static_classes, [s.free_static for s in self.static.cameras])
+        )
         scratch = {
             c.name: (np.full(c.shape, np.inf, dtype=np.float64), np.full(c.shape, -np.inf, dtype=np.float64))
             for c in cell.cameras
@@ -355,10 +363,6 @@ class Monitor:
         floor = [sh for sh in self.static.sheets if sh.name == "floor"]
         self._floor_top = floor[0].level + floor[0].height if floor else -math.inf
         self._no_robot = {c.name: np.zeros(c.shape, dtype=bool) for c in cell.cameras}
-        self._static_classes = [
-            prepare_static(s.lower, s.upper, s.free_static, c.near)
-            for c, s in zip(cell.cameras, self.static.cameras, strict=True)
-        ]
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
         self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
@@ -647,6 +651,7 @@ class Monitor:
         bufs, lease = self._image_pool.take()
         raster_bufs, raster_lease = self._raster_pool.take()
         free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
+        pixel_bufs = bufs.pixels
 
         # each camera's robot raster, then its pixels, on the pool's threads (one task a
         # camera: no wait for the other cameras' rasters); the raster stage's time runs
@@ -660,7 +665,7 @@ class Monitor:
             if padded_world:
                 raster = rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name])  # type: ignore[arg-type]
             raster_done[i] = time.perf_counter()
-            return raster, self._camera_pixels(i, usable, raster, free_stack, end_stack, pyramids)
+            return raster, self._camera_pixels(i, usable, raster, pixel_bufs[i], pyramids)
 
         done = list(self._pool.map(camera, range(len(cell.cameras))))
         rasters: dict[str, RobotRaster] = {
@@ -902,8 +907,7 @@ class Monitor:
         i: int,
         usable: Mapping[str, np.ndarray],
         raster: RobotRaster | None,
-        free_stack: ImageStack,
-        end_stack: ImageStack,
+        buffers: PixelBuffers,
         pyramids: PyramidStack,
     ) -> _CameraPixels:
         """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
@@ -921,10 +925,10 @@ class Monitor:
             depth if depth is not None else self._blind[cam.name],
             s.reference, s.lower, s.upper, s.free_static, shadow,
             near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
-            is_color=cam.kind == "color", out_free=free_stack.image(i), out_end=end_stack.image(i),
-            tile=cell.reconstruction.tile,
+            is_color=cam.kind == "color", tile=cell.reconstruction.tile,
             shadow_rect=(0, -1, 0, -1) if raster is None or raster.rect is None else raster.rect,
             static=self._static_classes[i],
+            buffers=buffers,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
@@ -939,8 +943,8 @@ class Monitor:
                     [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], cls.end[v_idx, u_idx]]
                 )
                 cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
-        if depth is not None:
-            pyramids.build_camera(i)
+        # (also without a frame: the pyramids must follow the images they are kept for)
+        pyramids.update_camera(i, buffers.changed)
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
@@ -1120,10 +1124,18 @@ def _gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple
 class _CycleBuffers:
     """One cycle's images: every camera's free depth, segment ends and pyramids."""
 
-    def __init__(self, stack: CameraStack) -> None:
+    def __init__(self, stack: CameraStack, statics: list[StaticClasses], free_static: list[np.ndarray]) -> None:
         self.free = ImageStack(stack, fill=None)
         self.end = ImageStack(stack, fill=None)
+        # the static images, and their pyramids: each cycle restores and updates only
+        # what the last one changed
+        self.pixels = [
+            PixelBuffers(st, fs, self.free.image(i), self.end.image(i))
+            for i, (st, fs) in enumerate(zip(statics, free_static, strict=True))
+        ]
         self.pyramids = PyramidStack.allocate(self.free)
+        for i in range(len(statics)):
+            self.pyramids.build_camera(i)
 
 
 class _Lease:

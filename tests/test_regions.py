@@ -10,7 +10,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from polyhull.engine.pixels import classify_frame, small_gap_pixels, tile_segments
+from polyhull.engine.pixels import (
+    PixelBuffers,
+    build_pyramid,
+    classify_frame,
+    prepare_static,
+    pyramid_layout,
+    small_gap_pixels,
+    tile_segments,
+    update_pyramid,
+)
 from polyhull.engine.static_model import StaticCamera
 from polyhull.regions import (
     _pixel_corner_min,
@@ -184,6 +193,53 @@ def test_robot_shadow_explains_pixels_behind_its_start() -> None:
     )
     for name in ("free", "end", "invalid", "tiles"):
         np.testing.assert_array_equal(getattr(inrect, name), getattr(cls, name))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), kind=st.sampled_from(["depth", "color"]), cycles=st.integers(2, 5))
+def test_reused_buffers_and_pyramids_equal_fresh_ones(seed: int, kind: str, cycles: int) -> None:
+    """Classifying a sequence of frames into one camera's reused buffers (restored only
+    where the last frame changed them), with the pyramids updated only in the changed
+    blocks, gives what fresh buffers and a full pyramid build give, frame after frame."""
+    cam = make_camera(width=37, height=29, kind=kind)  # not a multiple of the 8 px blocks
+    B = _reference(cam)
+    static = StaticCamera.build(cam, B, 2)
+    prep = prepare_static(static.lower, static.upper, static.free_static, cam.near)
+    H, W = cam.shape
+    reused = PixelBuffers(prep, static.free_static)
+    offsets, shapes = pyramid_layout(H, W)
+    size = int((shapes[1:, 0] * shapes[1:, 1]).sum())
+    o = offsets.copy()
+    mins, maxs = np.empty(size, np.float32), np.empty(size, np.float32)
+    build_pyramid(reused.free, mins, maxs, o, shapes)
+    rng = np.random.default_rng(seed)
+    for _ in range(cycles):
+        D = np.where(np.isfinite(B), B, 3.0) + rng.normal(0.0, 0.003, size=B.shape)
+        v0, u0 = rng.integers(0, H - 4), rng.integers(0, W - 4)
+        D[v0 : v0 + rng.integers(1, 12), u0 : u0 + rng.integers(1, 12)] = rng.uniform(0.5, 3.0)  # a target
+        D.ravel()[rng.integers(0, B.size, size=rng.integers(0, 20))] = rng.choice([0.0, np.nan, np.inf, -np.inf, 9.0])
+        D = D.astype(np.float32)
+        shadow = np.full(cam.shape, np.inf, dtype=np.float32)
+        rect = None
+        if rng.uniform() < 0.7:
+            a, b = sorted(rng.integers(0, W, size=2))
+            c, d = sorted(rng.integers(0, H, size=2))
+            shadow[c : d + 1, a : b + 1] = rng.uniform(0.5, 4.0, size=(d - c + 1, b - a + 1))
+            rect = (int(a), int(b), int(c), int(d))
+        args = (D, static.reference, static.lower, static.upper, static.free_static, shadow)
+        kw = dict(near=cam.near, far=cam.far, tau_a=static.tau_a, tau_min=cam.tolerance_min, is_color=kind == "color")
+        got = classify_frame(*args, **kw, shadow_rect=rect, static=prep, buffers=reused)
+        fresh = classify_frame(*args, **kw)
+        for name in ("free", "end", "invalid", "tiles"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(fresh, name), err_msg=name)
+        assert (got.unexplained, got.invalid_share, got.far_side_share) == (
+            fresh.unexplained, fresh.invalid_share, fresh.far_side_share
+        )
+        update_pyramid(reused.free, mins, maxs, o, shapes, reused.changed)
+        fmins, fmaxs = np.empty(size, np.float32), np.empty(size, np.float32)
+        build_pyramid(fresh.free, fmins, fmaxs, o, shapes)
+        np.testing.assert_array_equal(mins, fmins)
+        np.testing.assert_array_equal(maxs, fmaxs)
 
 
 @settings(max_examples=40, deadline=None)

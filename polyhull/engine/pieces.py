@@ -39,7 +39,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..typed import ArrayF64
-from .pixels import build_pyramid, project_bounds, push_row, pyramid_layout
+from .pixels import build_pyramid, project_bounds, push_row, pyramid_layout, update_pyramid
 
 __all__ = [
     "CameraStack",
@@ -469,18 +469,32 @@ class PyramidStack(NamedTuple):
 
     def build_camera(self, i: int) -> None:
         """Write camera ``i``'s pyramids of its free depth image (thread-safe per camera)."""
+        views = self._camera(i)
+        if views is not None:
+            build_pyramid(*views)
+
+    def update_camera(self, i: int, changed: np.ndarray) -> None:
+        """Update camera ``i``'s pyramids after its free depth image changed only in the
+        ``changed`` blocks (:attr:`polyhull.engine.pixels.PixelBuffers.changed`)."""
+        views = self._camera(i)
+        if views is not None:
+            update_pyramid(*views, changed)
+
+    def _camera(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Camera ``i``'s (image, mins, maxs, level offsets, level shapes), None without
+        levels above the image."""
         L = int(self.levels[i])
+        if L < 2:
+            return None
         shp = self.shapes[i, :L]
         H, W = int(shp[0, 0]), int(shp[0, 1])
         o0 = int(self.offsets[i, 0])
         image = self.image[o0 : o0 + H * W].reshape(H, W)
-        if L < 2:
-            return
         start = int(self.offsets[i, 1])
         o = self.offsets[i, :L] - start
         o[0] = 0
         size = int((shp[1:, 0] * shp[1:, 1]).sum())
-        build_pyramid(image, self.mins[start : start + size], self.maxs[start : start + size], o, shp)
+        return image, self.mins[start : start + size], self.maxs[start : start + size], o, shp
 
     def only(self, active: np.ndarray) -> PyramidStack:
         """The same pyramids, with the cameras not ``active`` left out (no levels)."""

@@ -26,12 +26,14 @@ import numpy as np
 from ..typed import ArrayF32
 
 __all__ = [
+    "PixelBuffers",
     "PixelClasses",
     "StaticClasses",
     "classify_frame",
     "prepare_static",
     "pyramid_layout",
     "build_pyramid",
+    "update_pyramid",
     "tile_segments",
     "memory_segments",
     "box_rects",
@@ -102,26 +104,85 @@ CHUNK = 16
 """Pixels of a row tested together for a non-static reading (a branch-free, vectorised
 test); a chunk holding one is classified pixel by pixel."""
 
+BLOCK = 8
+"""Edge [px] of the blocks in which :class:`PixelBuffers` track what differs from the
+static images (level 3 of the free depth pyramids)."""
+
+
+class PixelBuffers:
+    """One camera's free depth, segment ends and invalid flags, kept from cycle to cycle.
+
+    Between cycles they hold the last classification; what differs from the static
+    images (``free0``, ``f_s``, no invalid pixel) lies in the blocks of :attr:`dirty` and,
+    for the segment ends, in the robot's rectangle :attr:`rect`. The next classification
+    restores only those, so a cycle reads and writes the whole images only where the
+    scene is not static (a copy of three images a camera costs more than the rest of the
+    classification: the cycle is bound by memory traffic).
+
+    Attributes:
+        free: (H, W) float32 free depth.
+        end: (H, W) float32 segment ends.
+        invalid: (H, W) pixels with no usable reading.
+        dirty: (ceil(H / BLOCK), ceil(W / BLOCK)) blocks where ``free`` or ``invalid``
+            differ from the static images.
+        changed: Blocks restored or written by the last classification (where the free
+            depth pyramids must be updated).
+        rect: (u0, u1, v0, v1) where ``end`` may differ from ``f_s`` (empty: u1 < u0).
+    """
+
+    def __init__(self, static: StaticClasses, free_static: ArrayF32, free: ArrayF32 | None = None, end: ArrayF32 | None = None) -> None:
+        """Buffers holding the static images (``free`` and ``end`` are written here: views
+        of a cycle's image stacks, or new arrays when None)."""
+        H, W = free_static.shape
+        self.free = np.empty((H, W), dtype=np.float32) if free is None else free
+        self.end = np.empty((H, W), dtype=np.float32) if end is None else end
+        self.free[:] = static.free0
+        self.end[:] = free_static
+        self.invalid = np.zeros((H, W), dtype=np.bool_)
+        shape = (-(-H // BLOCK), -(-W // BLOCK))
+        self.dirty = np.zeros(shape, dtype=np.bool_)
+        self.changed = np.zeros(shape, dtype=np.bool_)
+        self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
+
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles):  # pragma: no cover - compiled
-    """The free depth and segment ends start as the static ones (copies); only the
-    chunks of pixels holding a reading outside the band (``T``/``U`` of
+def _restore(fs, free0, free, end, invalid, dirty, changed, prev_rect):  # pragma: no cover - compiled
+    """Put back the static images where the last classification wrote them."""
+    H, W = free.shape
+    for bv in range(dirty.shape[0]):
+        for bu in range(dirty.shape[1]):
+            changed[bv, bu] = dirty[bv, bu]
+            if not dirty[bv, bu]:
+                continue
+            dirty[bv, bu] = False
+            for v in range(bv * BLOCK, min((bv + 1) * BLOCK, H)):
+                for u in range(bu * BLOCK, min((bu + 1) * BLOCK, W)):
+                    free[v, u] = free0[v, u]
+                    invalid[v, u] = False
+    for v in range(prev_rect[2], prev_rect[3] + 1):
+        for u in range(prev_rect[0], prev_rect[1] + 1):
+            end[v, u] = fs[v, u]
+
+
+@nb.njit(cache=True, nogil=True)
+def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+    """Classify a frame into buffers holding the static images (:func:`_restore`): only
+    the chunks of pixels holding a reading outside the band (``T``/``U`` of
     :class:`StaticClasses`: every reading is "in the band" where ``f_s <= near``, except
     NaN) are classified pixel by pixel. A static pixel frees ``free0`` and its segment
-    (to ``f_s``, or to the robot's shadow start) is empty."""
+    (to ``f_s``, or to the robot's shadow start) is empty. Marks in ``dirty`` (and
+    ``changed``) the blocks where ``out_free`` or ``out_invalid`` now differ from the
+    static images."""
     H, W = depth.shape
     out_tiles[:, :] = False
     su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
     n_far = 0
     n_seg = 0
+    for v in range(sv0, sv1 + 1):  # the shadow image is +inf outside the rectangle
+        for u in range(su0, su1 + 1):
+            out_end[v, u] = min(fs[v, u], shadow[v, u])
     for v in range(H):
-        out_free[v, :] = free0[v, :]
-        out_end[v, :] = fs[v, :]
-        if sv0 <= v <= sv1:  # the shadow image is +inf outside the rectangle
-            for u in range(su0, su1 + 1):
-                out_end[v, u] = min(fs[v, u], shadow[v, u])
         for c0 in range(0, W, CHUNK):
             c1 = min(c0 + CHUNK, W)
             hit = False
@@ -135,6 +196,7 @@ def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_co
                 if d >= T[v, u] and d <= U[v, u]:
                     continue
                 f_s = np.float64(fs[v, u])
+                bad = False
                 if f_s <= near:
                     free = near
                 else:
@@ -150,6 +212,7 @@ def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_co
                     if not usable:
                         n_invalid += 1
                         out_invalid[v, u] = True
+                        bad = True
                         f = near
                     elif is_color:
                         f = near if de < T[v, u] else f_s
@@ -164,7 +227,10 @@ def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_co
                 fr = np.float32(free)
                 if fr > free:
                     fr = np.nextafter(fr, np.float32(-np.inf))
-                out_free[v, u] = fr
+                if fr != free0[v, u] or bad:
+                    out_free[v, u] = fr
+                    dirty[v // BLOCK, u // BLOCK] = True
+                    changed[v // BLOCK, u // BLOCK] = True
                 if fr < end:
                     n_seg += 1
                     out_tiles[v // tile, u // tile] = True
@@ -184,11 +250,10 @@ def classify_frame(
     tau_a: float,
     tau_min: float,
     is_color: bool,
-    out_free: ArrayF32 | None = None,
-    out_end: ArrayF32 | None = None,
     tile: int = 8,
     shadow_rect: tuple[int, int, int, int] | None = None,
     static: StaticClasses | None = None,
+    buffers: PixelBuffers | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -204,32 +269,32 @@ def classify_frame(
         tau_a: ``tolerance_sigmas * noise``: tau(z) = max(tau_a z^2, tau_min) [m].
         tau_min: Floor of tau [m].
         is_color: Binary-depth (colour) camera.
-        out_free: (H, W) float32 array to write the free depth into (a new one if None).
-        out_end: (H, W) float32 array to write the segment ends into (a new one if None).
         tile: Edge [px] of the tiles of :attr:`PixelClasses.tiles`.
         shadow_rect: (u0, u1, v0, v1) inclusive rectangle outside which ``shadow_start`` is
             +inf (not read there); None: the whole image.
         static: :func:`prepare_static` of ``lower``, ``upper``, ``free_static`` and
             ``near`` (made here when None; a monitor makes it once).
+        buffers: The camera's :class:`PixelBuffers` (with this ``static`` and
+            ``free_static``), written and returned in the classes; new ones when None.
     """
     H, W = free_static.shape
     if static is None:
         static = prepare_static(lower, upper, free_static, near)
-    if out_free is None:
-        out_free = np.empty((H, W), dtype=np.float32)
-    if out_end is None:
-        out_end = np.empty((H, W), dtype=np.float32)
-    out_invalid = np.zeros((H, W), dtype=np.bool_)
+    if buffers is None:
+        buffers = PixelBuffers(static, free_static)
     tile = int(tile)
     rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
+    b = buffers
+    _restore(free_static, static.free0, b.free, b.end, b.invalid, b.dirty, b.changed, b.rect)
+    b.rect = rect
     n_seg, n_invalid, n_far = _classify(
         depth, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
-        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), out_free, out_end, out_invalid,
-        tile, out_tiles,
+        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
+        tile, out_tiles, b.dirty, b.changed,
     )
     seen = max(static.seen, 1)
-    return PixelClasses(out_free, out_end, int(n_seg), out_invalid, n_invalid / seen, n_far / seen, out_tiles)
+    return PixelClasses(b.free, b.end, int(n_seg), b.invalid, n_invalid / seen, n_far / seen, out_tiles)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -425,6 +490,49 @@ def _build_pyramid(free, mins, maxs, offsets, shapes):  # pragma: no cover - com
                 c1 = min(c0 + 1, w0 - 1)
                 mins[o1 + r * w1 + c] = min(min(mins[a + c0], mins[a + c1]), min(mins[b + c0], mins[b + c1]))
                 maxs[o1 + r * w1 + c] = max(max(maxs[a + c0], maxs[a + c1]), max(maxs[b + c0], maxs[b + c1]))
+
+
+@nb.njit(cache=True, nogil=True)
+def _update_pyramid(free, mins, maxs, offsets, shapes, changed):  # pragma: no cover - compiled
+    """Levels 1..3 only in the ``changed`` blocks (BLOCK = 8 px: a level-3 cell each),
+    the coarser levels (1/64 of the pixels) whole; the layout as in :func:`_build_pyramid`."""
+    H, W = free.shape
+    for lev in range(1, shapes.shape[0]):
+        h0, w0 = shapes[lev - 1, 0], shapes[lev - 1, 1]
+        h1, w1 = shapes[lev, 0], shapes[lev, 1]
+        o0, o1 = offsets[lev - 1], offsets[lev]
+        for bv in range(changed.shape[0] if lev <= 3 else 1):
+            for bu in range(changed.shape[1] if lev <= 3 else 1):
+                if lev <= 3:
+                    if not changed[bv, bu]:
+                        continue
+                    k = 1 << (3 - lev)
+                    r0, r1, c0_, c1_ = bv * k, min((bv + 1) * k, h1), bu * k, min((bu + 1) * k, w1)
+                else:
+                    r0, r1, c0_, c1_ = 0, h1, 0, w1
+                for r in range(r0, r1):
+                    ra = 2 * r
+                    rb = min(2 * r + 1, h0 - 1)
+                    for c in range(c0_, c1_):
+                        ca = 2 * c
+                        cb = min(ca + 1, w0 - 1)
+                        if lev == 1:
+                            x0, x1, x2, x3 = free[ra, ca], free[ra, cb], free[rb, ca], free[rb, cb]
+                            mins[o1 + r * w1 + c] = min(min(x0, x1), min(x2, x3))
+                            maxs[o1 + r * w1 + c] = max(max(x0, x1), max(x2, x3))
+                        else:
+                            a = o0 + ra * w0
+                            b = o0 + rb * w0
+                            mins[o1 + r * w1 + c] = min(min(mins[a + ca], mins[a + cb]), min(mins[b + ca], mins[b + cb]))
+                            maxs[o1 + r * w1 + c] = max(max(maxs[a + ca], maxs[a + cb]), max(maxs[b + ca], maxs[b + cb]))
+
+
+def update_pyramid(
+    free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray, changed: np.ndarray
+) -> None:
+    """Bring the pyramids of :func:`build_pyramid` up to date after ``free`` changed only in
+    the ``changed`` blocks (BLOCK x BLOCK pixels, :attr:`PixelBuffers.changed`)."""
+    _update_pyramid(free, mins, maxs, offsets, shapes, changed)
 
 
 def build_pyramid(free: ArrayF32, mins: ArrayF32, maxs: ArrayF32, offsets: np.ndarray, shapes: np.ndarray) -> None:
