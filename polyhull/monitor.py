@@ -1015,16 +1015,11 @@ class Monitor:
             if raster is None or free is None or raster.rect is None:
                 continue
             u0, u1, v0, v1 = raster.rect
-            win = (slice(v0, v1 + 1), slice(u0, u1 + 1))
-            rows = v0 + np.nonzero(raster.covered[win].any(axis=1))[0]
-            cols = u0 + np.nonzero(raster.covered[win].any(axis=0))[0]
-            s_min = float(raster.back[win][raster.covered[win]].min())
             # the grown seed boxes behind the robot's nearest back depth, as pixel
-            # rectangles within the rows and columns holding covered pixels
+            # rectangles within the covered pixels' rectangle
             k = cam.intrinsics
             rects, zr = box_rects(
-                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, s_min),
-                (int(cols[0]), int(cols[-1]), int(rows[0]), int(rows[-1])),
+                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, raster.back_min), raster.rect
             )
             # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
             H, W = cam.shape

@@ -79,12 +79,13 @@ def test_raster_bounds_the_padded_robot(setup, q) -> None:  # noqa: ANN001
         assert (r.back[hit] >= back[hit] * (1 - 1e-6)).all()
         assert (r.shadow_start[hit] <= r.front[hit]).all()
         if r.rect is not None:
-            u0, u1, v0, v1 = r.rect
-            outside = np.ones(r.covered.shape, dtype=bool)
-            outside[v0 : v1 + 1, u0 : u1 + 1] = False
-            assert not r.covered[outside].any()
+            # the covered pixels' bounding rectangle, and their least back depth
+            rows, cols = np.nonzero(r.covered.any(axis=1))[0], np.nonzero(r.covered.any(axis=0))[0]
+            assert r.rect == (cols[0], cols[-1], rows[0], rows[-1])
+            assert r.back_min == float(r.back[r.covered].min())
         else:
             assert not r.covered.any()
+            assert r.back_min == np.inf
 
 
 def test_reused_buffers_equal_fresh_images(setup) -> None:  # noqa: ANN001

@@ -154,8 +154,9 @@ class RobotRaster:
         back: (H, W) upper bound of the padded robot's farthest depth over each covered
             pixel [m] (-inf elsewhere): behind it, the pixel's ray has left the robot.
         shadow_start: (H, W) depth where the robot's shadow starts [m] (+inf elsewhere).
-        rect: (u0, u1, v0, v1) inclusive pixel rectangle holding every covered pixel, or
+        rect: (u0, u1, v0, v1) inclusive bounding rectangle of the covered pixels, or
             None when the robot covers none.
+        back_min: The least ``back`` over the covered pixels [m] (+inf when none).
     """
 
     covered: np.ndarray
@@ -163,6 +164,7 @@ class RobotRaster:
     back: ArrayF32
     shadow_start: ArrayF32
     rect: tuple[int, int, int, int] | None = None
+    back_min: float = float("inf")
 
 
 @nb.njit(cache=True, nogil=True)
@@ -464,13 +466,16 @@ def rasterize_robot(
             _raster(pix, pieces.all_faces, W, H, float(camera.near), buffers.zbuf, buffers.zback, rect)
         covered, front, back, start = buffers.take()
         box: tuple[int, int, int, int] | None = None
+        back_min = np.inf
         if rect[1] >= rect[0]:
-            box = (int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]))
-            _finish(
-                buffers.zbuf, buffers.zback, box[0], box[1], box[2], box[3], float(camera.near),
-                float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
-                float(pieces.padding), covered, front, back, start,
+            out = np.array([W, -1, H, -1], dtype=np.int64)  # the covered pixels' rectangle
+            back_min = _finish(
+                buffers.zbuf, buffers.zback, int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]),
+                float(camera.near), float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
+                float(pieces.padding), covered, front, back, start, out,
             )
+            if out[1] >= out[0]:
+                box = (int(out[0]), int(out[1]), int(out[2]), int(out[3]))
         buffers.written(box)
     except BaseException:
         # never leave a depth buffer half written for the next raster (a nearer front
@@ -479,13 +484,15 @@ def rasterize_robot(
         buffers.zback.fill(-np.inf)
         buffers.written((0, W - 1, 0, H - 1))
         raise
-    return RobotRaster(covered, front, back, start, box)
+    return RobotRaster(covered, front, back, start, box, float(back_min))
 
 
 @nb.njit(cache=True, nogil=True)
-def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front, back, start):  # pragma: no cover - compiled
+def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front, back, start, out):  # pragma: no cover - compiled
     """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``,
-    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there.
+    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there. Grows
+    ``out`` (u0, u1, v0, v1) to the covered pixels' rectangle; returns their least back
+    depth.
 
     A pixel is covered when both a front and a back face wrote it: a ray through its grown
     square that meets a piece enters through a front face and leaves through a back face,
@@ -495,6 +502,7 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front,
     # three a pixel cost ~20 ns); every value rounded here is positive and finite
     bits_f = np.empty(1, dtype=np.float32)
     bits_i = bits_f.view(np.int32)
+    back_min = np.float32(np.inf)
     for v in range(v0, v1 + 1):
         for u in range(u0, u1 + 1):
             wn = zbuf[v, u]
@@ -511,10 +519,17 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front,
             zb = -1.0 / wx if wx < 0.0 else np.inf
             covered[v, u] = True
             front[v, u] = _round32(z, -1, bits_f, bits_i)
-            back[v, u] = _round32(zb, 1, bits_f, bits_i)
+            b32 = _round32(zb, 1, bits_f, bits_i)
+            back[v, u] = b32
+            back_min = min(back_min, b32)
+            out[0] = min(out[0], u)
+            out[1] = max(out[1], u)
+            out[2] = min(out[2], v)
+            out[3] = max(out[3], v)
             tau = max(a * z * z, tmin)
             s = max(z - max(0.0, 2.0 * tau - padding), near)
             start[v, u] = _round32(s, -1, bits_f, bits_i)
+    return back_min
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
