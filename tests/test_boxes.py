@@ -11,7 +11,13 @@ from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from polyhull.engine.boxes import TriangleGrid, any_overlap, groups_meet_triangles, overlap_groups
+from polyhull.engine.boxes import (
+    TriangleGrid,
+    any_overlap,
+    group_bounds,
+    groups_meet_triangles,
+    overlap_groups,
+)
 from polyhull.errors import GeometryError
 
 
@@ -184,3 +190,20 @@ def test_near_balls_equals_numpy(seed: int, n: int, b: int) -> None:
     gap = np.linalg.norm(c[:, None, :] - balls[None, :, :3], axis=2) - balls[None, :, 3] - r[:, None]
     want = (gap <= 0.05).any(axis=1) if b else np.zeros(n, dtype=bool)
     np.testing.assert_array_equal(_near_balls(lo, hi, balls, 0.05), want)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 60), K=st.integers(1, 8))
+def test_group_bounds_equal_ufunc_at(seed: int, n: int, K: int) -> None:
+    """Each group's bounds are the min / max of its boxes' (as numpy's ufunc.at gives);
+    an empty group keeps +inf / -inf."""
+    rng = np.random.default_rng(seed)
+    lo = rng.normal(size=(n, 3))
+    hi = lo + rng.uniform(0, 1, size=(n, 3))
+    labels = rng.integers(0, K, size=n)
+    clo, chi = group_bounds(labels, lo, hi, K)
+    elo, ehi = np.full((K, 3), np.inf), np.full((K, 3), -np.inf)
+    np.minimum.at(elo, labels, lo)
+    np.maximum.at(ehi, labels, hi)
+    np.testing.assert_array_equal(clo, elo)
+    np.testing.assert_array_equal(chi, ehi)

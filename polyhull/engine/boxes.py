@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import GeometryError
 from ..typed import ArrayF64
 
-__all__ = ["overlap_groups", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
+__all__ = ["overlap_groups", "group_bounds", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -133,6 +133,30 @@ def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
     # are vectorised, so the sorting stays outside the compiled code
     axis = int(np.argmin(_started_before_end(np.sort(lo_t, axis=1), np.sort(hi_t, axis=1))))
     return _groups(lo_t, hi_t, axis, np.argsort(lo_t[axis]))
+
+
+@nb.njit(cache=True, nogil=True)
+def _group_bounds(labels, lo, hi, clo, chi):  # pragma: no cover - compiled
+    for i in range(labels.shape[0]):
+        k = labels[i]
+        for a in range(3):
+            clo[k, a] = min(clo[k, a], lo[i, a])
+            chi[k, a] = max(chi[k, a], hi[i, a])
+
+
+def group_bounds(labels: np.ndarray, lo: ArrayF64, hi: ArrayF64, K: int) -> tuple[ArrayF64, ArrayF64]:
+    """(K, 3) bounds of the union of each group's boxes [lo, hi] (N, 3) (``labels`` (N,)
+    in 0..K-1; +inf / -inf for an empty group)."""
+    clo = np.full((K, 3), np.inf)
+    chi = np.full((K, 3), -np.inf)
+    _group_bounds(
+        np.ascontiguousarray(labels, dtype=np.int64),
+        np.ascontiguousarray(lo, dtype=np.float64),
+        np.ascontiguousarray(hi, dtype=np.float64),
+        clo,
+        chi,
+    )
+    return clo, chi
 
 
 @nb.njit(cache=True, nogil=True)

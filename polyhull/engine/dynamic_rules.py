@@ -61,7 +61,7 @@ import numpy as np
 from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
-from .boxes import any_overlap, overlap_groups
+from .boxes import any_overlap, group_bounds, overlap_groups
 from .pieces import vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
@@ -464,23 +464,18 @@ def judge_dynamic(
     lo, hi = vertex_bounds(vertices)
     labels = group_boxes(lo, hi)
     K = int(labels.max()) + 1
-    clo = np.full((K, 3), np.inf)
-    chi = np.full((K, 3), -np.inf)
-    np.minimum.at(clo, labels, lo)
-    np.maximum.at(chi, labels, hi)
+    clo, chi = group_bounds(labels, lo, hi, K)
     cvol = np.bincount(labels, weights=volumes, minlength=K)
 
     zmin, zmax = np.asarray(ctx.zone.min, dtype=np.float64), np.asarray(ctx.zone.max, dtype=np.float64)
     boundary = np.any(clo[:, :2] <= zmin[:2] + eps, axis=1) | np.any(chi[:, :2] >= zmax[:2] - eps, axis=1)
     boundary |= chi[:, 2] >= zmax[2] - eps
-    touch_static = np.zeros(K, dtype=bool)
     grid_touch = ctx.static_touch.any_in(lo, hi)
-    np.logical_or.at(touch_static, labels, grid_touch)
-    touch_m = np.zeros(K, dtype=bool)
+    touch_static = np.bincount(labels[grid_touch], minlength=K) > 0
     near_robot = at_robot.copy()
     if len(ctx.robot_spheres):
         near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
-    np.logical_or.at(touch_m, labels, near_robot)
+    touch_m = np.bincount(labels[near_robot], minlength=K) > 0
     entry: np.ndarray = np.zeros(K, dtype=bool)
     if len(ctx.entry_lo):
         entry = np.asarray((_box_gap(clo, chi, ctx.entry_lo, ctx.entry_hi) <= eps).any(axis=1))
