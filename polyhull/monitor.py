@@ -776,7 +776,7 @@ class Monitor:
             "plausibility",
             lambda: judge_dynamic(
                 allp.vertices, vols, at_robot, ctx, lambda idx: _hexahedra_manifold(allp.vertices[idx]),
-                memory=np.arange(len(allp)) >= len(pieces),
+                memory=np.arange(len(allp)) >= len(pieces), pool=self._pool,
             ),
         )
         # coverage: the free share of Z is at least 1 - (C_static + pieces) / Z

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -62,7 +63,7 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import any_overlap, group_bounds, overlap_groups
-from .pieces import vertex_bounds
+from .pieces import PARALLEL_MIN, vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 
 __all__ = [
@@ -449,11 +450,13 @@ def judge_dynamic(
     ctx: DynamicContext,
     make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
     memory: np.ndarray | None = None,
+    pool: Executor | None = None,
 ) -> DynamicResult:
     """Apply the dynamic rules to pieces with vertices (N, 8, 3) [m], volumes (N,) [m^3]
     and ``at_robot`` (N,) (the piece ends at the robot's shadow start). ``memory`` (N,)
     marks the shadow memory's pieces: they are judged like the others but add no sheet
-    boxes (they are the robot's hidden space, not something seen standing there)."""
+    boxes (they are the robot's hidden space, not something seen standing there). With a
+    ``pool``, the components are found on one of its threads meanwhile."""
     n = vertices.shape[0]
     if n == 0:
         z = np.zeros((0, 3))
@@ -462,7 +465,15 @@ def judge_dynamic(
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
-    labels = group_boxes(lo, hi)
+    # the components on the pool's thread while this one runs the per-piece tests
+    groups = pool.submit(group_boxes, lo, hi) if pool is not None and n >= PARALLEL_MIN else None
+    grid_touch = ctx.static_touch.any_in(lo, hi)
+    near_robot = at_robot.copy()
+    if len(ctx.robot_spheres):
+        near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
+    inside = in_shells(vertices, ctx) if p.too_thin else np.zeros(n, dtype=bool)
+    sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
+    labels = group_boxes(lo, hi) if groups is None else groups.result()
     K = int(labels.max()) + 1
     clo, chi = group_bounds(labels, lo, hi, K)
     cvol = np.bincount(labels, weights=volumes, minlength=K)
@@ -470,11 +481,7 @@ def judge_dynamic(
     zmin, zmax = np.asarray(ctx.zone.min, dtype=np.float64), np.asarray(ctx.zone.max, dtype=np.float64)
     boundary = np.any(clo[:, :2] <= zmin[:2] + eps, axis=1) | np.any(chi[:, :2] >= zmax[:2] - eps, axis=1)
     boundary |= chi[:, 2] >= zmax[2] - eps
-    grid_touch = ctx.static_touch.any_in(lo, hi)
     touch_static = np.bincount(labels[grid_touch], minlength=K) > 0
-    near_robot = at_robot.copy()
-    if len(ctx.robot_spheres):
-        near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
     touch_m = np.bincount(labels[near_robot], minlength=K) > 0
     entry: np.ndarray = np.zeros(K, dtype=bool)
     if len(ctx.entry_lo):
@@ -485,9 +492,7 @@ def judge_dynamic(
     # ``floor_shell_margin`` of it (a person reaching into the shell, standing on the floor).
     spared = boundary[labels] & p.keep_at_boundary
     shell_cut = np.zeros(n, dtype=bool)
-    inside = np.zeros(n, dtype=bool)
     if p.too_thin:
-        inside = in_shells(vertices, ctx)
         shell_cut = shell_cuts(vertices, inside, spared, ctx)
     small = np.zeros(K, dtype=bool)
     if p.too_small:
@@ -496,7 +501,8 @@ def judge_dynamic(
     on_surface = np.zeros(K, dtype=bool)  # reaches a sheet (the floor, an obstacle face)
     if p.flying:
         supported = touch_m.copy()
-        pairs, b, arr = _sheet_pairs(vertices, ctx.sheets, eps)
+        assert sheet_pairs is not None
+        pairs, b, arr = sheet_pairs
         keep = ~shell_cut[pairs[:, 0]]
         pairs, b = pairs[keep], b[keep]
         sh_i = pairs[:, 1]
