@@ -12,6 +12,7 @@ from hypothesis.extra import numpy as hnp
 
 from polyhull.engine.pixels import (
     PixelBuffers,
+    _packed_band,
     build_pyramid,
     classify_frame,
     prepare_static,
@@ -320,3 +321,20 @@ def test_free_region_point_oracle(seed: int, block: int) -> None:
     # invalid pixel removes its neighbourhood): at least half of the free points are kept.
     if block == 1:
         assert inside.sum() >= 0.5 * z_ok.sum()
+
+
+_BOUND = st.one_of(st.floats(0.0, 80.0, width=32), st.sampled_from([np.inf, -np.inf, np.nan, 0.0, 65.534, 65.535, 65.536]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(T=_BOUND, U=_BOUND, d=st.one_of(st.floats(-1.0, 90.0, width=32), st.sampled_from([np.inf, -np.inf, np.nan, 0.0])))
+def test_packed_band_says_static_only_inside_the_band(T: float, U: float, d: float) -> None:
+    """The packed millimetre band (the classification's first test) holds a reading only
+    when the exact band [T, U] does (the other readings are tested exactly)."""
+    band = _packed_band(np.array([[T]], np.float32), np.array([[U]], np.float32))[0, 0]
+    tq, uq = np.float32(band & 0xFFFF), np.float32(band >> 16)
+    dm = np.float32(1000.0) * np.float32(d)
+    with np.errstate(invalid="ignore"):
+        surely = bool(dm >= tq and (dm <= uq or uq == np.float32(65535.0)))
+        exact = bool(np.float32(d) >= np.float32(T) and np.float32(d) <= np.float32(U))
+    assert not surely or exact

@@ -79,12 +79,18 @@ class StaticClasses(NamedTuple):
             frees the near range whatever it reads).
         upper: (H, W) the band's upper bound U, +inf where ``f_s <= near``.
         seen: Number of pixels with ``f_s > near`` (that see the empty cell within range).
+        band: (H, W) uint32, the band shrunk to whole millimetres (and one more), packed:
+            ``Tq`` in the low 16 bits, ``Uq`` in the high ones (65535: no upper bound). A
+            reading with ``Tq <= 1000 d <= Uq`` is in the band for sure; the others are
+            tested against T and U. One image of half the size instead of two: the test
+            of every pixel is bound by memory traffic.
     """
 
     free0: ArrayF32
     lower: ArrayF32
     upper: ArrayF32
     seen: int
+    band: np.ndarray
 
 
 def prepare_static(lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near: float) -> StaticClasses:
@@ -97,7 +103,23 @@ def prepare_static(lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near
     free0 = np.where(inside, near32, fs).astype(np.float32)
     lo = np.where(inside, -np.inf, lower).astype(np.float32)
     hi = np.where(inside, np.inf, upper).astype(np.float32)
-    return StaticClasses(free0, lo, hi, int((~inside).sum()))
+    return StaticClasses(free0, lo, hi, int((~inside).sum()), _packed_band(lo, hi))
+
+
+def _packed_band(lower: ArrayF32, upper: ArrayF32) -> np.ndarray:
+    """:attr:`StaticClasses.band`: ``Tq = ceil(1000 T) + 1`` (0 for -inf) and ``Uq =
+    floor(1000 U) - 1`` (65535 for +inf), a millimetre inside the band and more than its
+    rounding; a pixel whose band does not fit (beyond 65 m, NaN) gets (65535, 0): always
+    tested exactly."""
+    T = np.asarray(lower, dtype=np.float64)
+    U = np.asarray(upper, dtype=np.float64)
+    with np.errstate(invalid="ignore", over="ignore"):
+        tq = np.where(T == -np.inf, 0.0, np.ceil(T * 1000.0) + 1.0)
+        uq = np.where(U == np.inf, 65535.0, np.floor(U * 1000.0) - 1.0)
+        fits = (tq >= 0.0) & (tq <= 65534.0) & ((U == np.inf) | ((uq >= 0.0) & (uq <= 65534.0)))
+    tq = np.where(fits, tq, 65535.0).astype(np.uint32)
+    uq = np.where(fits, uq, 0.0).astype(np.uint32)
+    return np.ascontiguousarray(tq | (uq << np.uint32(16)))
 
 
 CHUNK = 16
@@ -165,11 +187,11 @@ def _restore(fs, free0, free, end, invalid, dirty, changed, prev_rect):  # pragm
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+def _classify(depth, band, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the static images (:func:`_restore`): only
-    the chunks of pixels holding a reading outside the band (``T``/``U`` of
-    :class:`StaticClasses`: every reading is "in the band" where ``f_s <= near``, except
-    NaN) are classified pixel by pixel. A static pixel frees ``free0`` and its segment
+    the chunks of pixels holding a reading not surely in the band (the packed ``band`` of
+    :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
+    near``, except NaN) are classified pixel by pixel. A static pixel frees ``free0`` and its segment
     (to ``f_s``, or to the robot's shadow start) is empty. Marks in ``dirty`` (and
     ``changed``) the blocks where ``out_free`` or ``out_invalid`` now differ from the
     static images."""
@@ -187,8 +209,11 @@ def _classify(depth, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_co
             c1 = min(c0 + CHUNK, W)
             hit = False
             for u in range(c0, c1):
-                d = depth[v, u]
-                hit |= not (d >= T[v, u] and d <= U[v, u])
+                dm = np.float32(1000.0) * depth[v, u]
+                p = band[v, u]
+                tq = np.float32(p & 0xFFFF)
+                uq = np.float32(p >> 16)
+                hit |= not (dm >= tq and (dm <= uq or uq == np.float32(65535.0)))
             if not hit:
                 continue
             for u in range(c0, c1):
@@ -289,7 +314,7 @@ def classify_frame(
     _restore(free_static, static.free0, b.free, b.end, b.invalid, b.dirty, b.changed, b.rect)
     b.rect = rect
     n_seg, n_invalid, n_far = _classify(
-        depth, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
+        depth, static.band, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
