@@ -409,29 +409,31 @@ def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cove
     L = sph_c.shape[0]
     lower = np.empty((L, n))
     near = np.zeros(n, dtype=np.bool_)
-    upper = np.inf
+    upper2 = np.inf  # squared (one root at the end)
     for i in range(n):
-        lo = np.empty(3)
-        hi = np.empty(3)
-        mid = np.zeros(3)
-        for a in range(3):
-            lo[a] = pieces[i, 0, a]
-            hi[a] = pieces[i, 0, a]
+        # scalars, not per-piece arrays (an allocation a piece cost more than the bounds)
+        lo0 = hi0 = pieces[i, 0, 0]
+        lo1 = hi1 = pieces[i, 0, 1]
+        lo2 = hi2 = pieces[i, 0, 2]
+        m0 = m1 = m2 = 0.0
         for k in range(8):
-            for a in range(3):
-                x = pieces[i, k, a]
-                lo[a] = min(lo[a], x)
-                hi[a] = max(hi[a], x)
-                mid[a] += x
-        c0 = 0.5 * (lo[0] + hi[0])
-        c1 = 0.5 * (lo[1] + hi[1])
-        c2 = 0.5 * (lo[2] + hi[2])
-        rad = 0.0
+            x, y, z = pieces[i, k, 0], pieces[i, k, 1], pieces[i, k, 2]
+            lo0, hi0 = min(lo0, x), max(hi0, x)
+            lo1, hi1 = min(lo1, y), max(hi1, y)
+            lo2, hi2 = min(lo2, z), max(hi2, z)
+            m0 += x
+            m1 += y
+            m2 += z
+        c0 = 0.5 * (lo0 + hi0)
+        c1 = 0.5 * (lo1 + hi1)
+        c2 = 0.5 * (lo2 + hi2)
+        rad2 = 0.0
         for k in range(8):
             dx = pieces[i, k, 0] - c0
             dy = pieces[i, k, 1] - c1
             dz = pieces[i, k, 2] - c2
-            rad = max(rad, np.sqrt(dx * dx + dy * dy + dz * dz))
+            rad2 = max(rad2, dx * dx + dy * dy + dz * dz)
+        rad = np.sqrt(rad2)
         for j in range(L):
             dx = c0 - sph_c[j, 0]
             dy = c1 - sph_c[j, 1]
@@ -448,12 +450,13 @@ def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cove
                 g2 += g * g
             lower[j, i] = max(ball, np.sqrt(g2) - rad)
             p0, p1, p2 = inner[j, 0], inner[j, 1], inner[j, 2]
-            if lo[0] <= p0 <= hi[0] and lo[1] <= p1 <= hi[1] and lo[2] <= p2 <= hi[2]:
+            if lo0 <= p0 <= hi0 and lo1 <= p1 <= hi1 and lo2 <= p2 <= hi2:
                 near[i] = True
-            dx = mid[0] / 8.0 - p0
-            dy = mid[1] / 8.0 - p1
-            dz = mid[2] / 8.0 - p2
-            upper = min(upper, np.sqrt(dx * dx + dy * dy + dz * dz))
+            dx = m0 / 8.0 - p0
+            dy = m1 / 8.0 - p1
+            dz = m2 / 8.0 - p2
+            upper2 = min(upper2, dx * dx + dy * dy + dz * dz)
+    upper = np.sqrt(upper2)
     return lower, near, upper
 
 
