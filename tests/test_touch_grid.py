@@ -39,3 +39,23 @@ def test_far_boxes_are_not_marked() -> None:
     grid = TouchGrid.within(region, np.zeros(3), np.ones(3) * 1.5, pitch=0.05, distance=0.05)
     far = np.array([[1.2, 1.2, 1.2], [0.0, 0.0, 0.0]])
     assert not grid.any_in(far, far).any()
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**16))
+def test_box_queries_equal_the_voxels_they_meet(seed: int) -> None:
+    """A box query says "marked" exactly when a marked voxel meets the box (clipped to the
+    grid): the summed-volume table against the voxels themselves, boxes of every size and
+    place (inside, across and outside the grid)."""
+    rng = np.random.default_rng(seed)
+    occ = rng.uniform(size=(7, 5, 6)) < 0.08
+    table = np.zeros((8, 6, 7), dtype=np.int32)
+    table[1:, 1:, 1:] = occ.astype(np.int32).cumsum(0).cumsum(1).cumsum(2)
+    grid = TouchGrid(np.array([0.1, -0.2, 0.3]), 0.1, table)
+    lo = rng.uniform(-0.5, 1.0, size=(300, 3))
+    hi = lo + rng.uniform(0.0, 0.4, size=(300, 3)) * (rng.uniform(size=(300, 1)) < 0.8)
+    got = grid.any_in(lo, hi)
+    a = np.clip(np.floor((lo - grid.origin) / grid.pitch).astype(np.int64), 0, np.array(occ.shape))
+    b = np.clip(np.floor((hi - grid.origin) / grid.pitch).astype(np.int64) + 1, 0, np.array(occ.shape))
+    want = np.array([occ[a[i, 0] : b[i, 0], a[i, 1] : b[i, 1], a[i, 2] : b[i, 2]].any() for i in range(len(lo))])
+    np.testing.assert_array_equal(got, want)

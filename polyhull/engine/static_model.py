@@ -45,6 +45,7 @@ from pathlib import Path
 
 import fcl
 import manifold3d as m3
+import numba as nb
 import numpy as np
 from scipy import ndimage
 
@@ -558,19 +559,30 @@ class TouchGrid:
 
     def any_in(self, lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
         """(N,) whether any marked voxel meets each box [lo, hi] (N, 3) [m]."""
-        lo = np.atleast_2d(np.asarray(lo, dtype=np.float64))
-        hi = np.atleast_2d(np.asarray(hi, dtype=np.float64))
-        n = np.asarray(self.table.shape) - 1
-        a = np.clip(np.floor((lo - self.origin) / self.pitch).astype(np.int64), 0, n)
-        b = np.clip(np.floor((hi - self.origin) / self.pitch).astype(np.int64) + 1, 0, n)
-        T = self.table
-        x0, y0, z0 = a.T
-        x1, y1, z1 = b.T
+        lo = np.ascontiguousarray(np.atleast_2d(np.asarray(lo, dtype=np.float64)))
+        hi = np.ascontiguousarray(np.atleast_2d(np.asarray(hi, dtype=np.float64)))
+        out = np.empty(lo.shape[0], dtype=np.bool_)
+        _any_in(self.table, np.asarray(self.origin, dtype=np.float64), float(self.pitch), lo, hi, out)
+        return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _any_in(T, origin, pitch, lo, hi, out):  # pragma: no cover - compiled
+    """:meth:`TouchGrid.any_in`, one box at a time (numpy's eight gathers of every box
+    cost ~0.4 ms for 4,000 boxes)."""
+    n0, n1, n2 = T.shape[0] - 1, T.shape[1] - 1, T.shape[2] - 1
+    for i in range(lo.shape[0]):
+        x0 = min(max(np.int64(np.floor((lo[i, 0] - origin[0]) / pitch)), 0), n0)
+        y0 = min(max(np.int64(np.floor((lo[i, 1] - origin[1]) / pitch)), 0), n1)
+        z0 = min(max(np.int64(np.floor((lo[i, 2] - origin[2]) / pitch)), 0), n2)
+        x1 = min(max(np.int64(np.floor((hi[i, 0] - origin[0]) / pitch)) + 1, 0), n0)
+        y1 = min(max(np.int64(np.floor((hi[i, 1] - origin[1]) / pitch)) + 1, 0), n1)
+        z1 = min(max(np.int64(np.floor((hi[i, 2] - origin[2]) / pitch)) + 1, 0), n2)
         total = (
             T[x1, y1, z1] - T[x0, y1, z1] - T[x1, y0, z1] - T[x1, y1, z0]
             + T[x0, y0, z1] + T[x0, y1, z0] + T[x1, y0, z0] - T[x0, y0, z0]
         )
-        return total > 0
+        out[i] = total > 0
 
 
 @dataclass(frozen=True, eq=False)
