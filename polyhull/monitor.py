@@ -108,9 +108,9 @@ class _CycleGeometry:
 
     static: StaticModel
     zone: m3.Manifold
-    pieces: ArrayF64  # (N, 8, 3) all dynamic pieces before the rules (with memory)
-    kept: ArrayF64  # (K, 8, 3) kept dynamic pieces, then the sheet boxes
-    n_kept: int  # how many of ``kept`` are pieces (the rest are sheet boxes)
+    pieces_parts: tuple[ArrayF64, ...]  # (N_i, 8, 3) all dynamic pieces before the rules (with memory)
+    kept_pieces: ArrayF64  # (K, 8, 3) kept dynamic pieces
+    sheet_boxes: ArrayF64  # (S, 8, 3) the sheet boxes under them
     robot_body: Callable[[], m3.Manifold]
     occlusion: Callable[[], m3.Manifold]
     full_pieces: Callable[[], ArrayF64]
@@ -127,13 +127,13 @@ class _CycleGeometry:
         if name == "region_dynamic":
             # The sheet boxes are supersets of the static sheet they stand for: as a
             # manifold, only their part in R2_static (the removed sheet) is shown.
-            pieces = _hexahedra_manifold(self.kept[: self.n_kept]) ^ self.zone
-            sheets = _hexahedra_manifold(self.kept[self.n_kept :]) ^ s.region_r2
+            pieces = _hexahedra_manifold(self.kept_pieces) ^ self.zone
+            sheets = _hexahedra_manifold(self.sheet_boxes) ^ s.region_r2
             return check_manifold(pieces + sheets, "dynamic region")
         if name == "region":
             return check_manifold(s.region + self.get("region_dynamic"), "region R3")
         if name == "region_r2":
-            dyn = _hexahedra_manifold(self.pieces) ^ self.zone
+            dyn = _hexahedra_manifold(np.concatenate(self.pieces_parts)) ^ self.zone
             return check_manifold((s.region_r2 + dyn) - s.solids - self.robot_body(), "region R2")
         if name == "hull":
             return check_manifold(s.hull + (_hexahedra_manifold(self.full_pieces()) ^ self.zone), "hull C")
@@ -828,7 +828,6 @@ class Monitor:
         )
         dist, sheet_boxes = refined.distance, refined.sheets
         kept_pieces = refined.pieces
-        kept = np.concatenate([kept_pieces.vertices, sheet_boxes])
         refine_removed = (_pieces_removed("too_thin", refined.cut, self._stack),) if len(refined.cut) else ()
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
@@ -866,9 +865,9 @@ class Monitor:
         geometry = _CycleGeometry(
             static=self.static,
             zone=self._zone,
-            pieces=np.concatenate([allp.vertices, gap_verts]),
-            kept=kept,
-            n_kept=len(kept_pieces),
+            pieces_parts=(allp.vertices, gap_verts),
+            kept_pieces=kept_pieces.vertices,
+            sheet_boxes=sheet_boxes,
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
             full_pieces=lambda: self._full_pieces(free_stack, run_carve),
