@@ -48,12 +48,13 @@ def test_box_queries_equal_the_voxels_they_meet(seed: int) -> None:
     grid): the summed-volume table against the voxels themselves, boxes of every size and
     place (inside, across and outside the grid)."""
     rng = np.random.default_rng(seed)
-    occ = rng.uniform(size=(7, 5, 6)) < 0.08
-    table = np.zeros((8, 6, 7), dtype=np.int32)
+    # larger than a coarse block on every axis, sparse: boxes in unmarked blocks too
+    occ = rng.uniform(size=(21, 17, 19)) < 0.004
+    table = np.zeros(tuple(np.asarray(occ.shape) + 1), dtype=np.int32)
     table[1:, 1:, 1:] = occ.astype(np.int32).cumsum(0).cumsum(1).cumsum(2)
     grid = TouchGrid(np.array([0.1, -0.2, 0.3]), 0.1, table)
-    lo = rng.uniform(-0.5, 1.0, size=(300, 3))
-    hi = lo + rng.uniform(0.0, 0.4, size=(300, 3)) * (rng.uniform(size=(300, 1)) < 0.8)
+    lo = rng.uniform(-0.5, 2.5, size=(600, 3))
+    hi = lo + rng.uniform(0.0, 0.6, size=(600, 3)) * (rng.uniform(size=(600, 1)) < 0.8)
     got = grid.any_in(lo, hi)
     a = np.clip(np.floor((lo - grid.origin) / grid.pitch).astype(np.int64), 0, np.array(occ.shape))
     b = np.clip(np.floor((hi - grid.origin) / grid.pitch).astype(np.int64) + 1, 0, np.array(occ.shape))

@@ -562,14 +562,41 @@ class TouchGrid:
         lo = np.ascontiguousarray(np.atleast_2d(np.asarray(lo, dtype=np.float64)))
         hi = np.ascontiguousarray(np.atleast_2d(np.asarray(hi, dtype=np.float64)))
         out = np.empty(lo.shape[0], dtype=np.bool_)
-        _any_in(self.table, np.asarray(self.origin, dtype=np.float64), float(self.pitch), lo, hi, out)
+        _any_in(self.table, self.coarse, COARSE, np.asarray(self.origin, dtype=np.float64), float(self.pitch), lo, hi, out)
         return out
+
+    @functools.cached_property
+    def coarse(self) -> np.ndarray:
+        """The summed-volume table of COARSE x COARSE x COARSE blocks of voxels (marked when
+        one of their voxels is): a box in unmarked blocks is answered from this small
+        table, without the large one's cache misses."""
+        T = self.table.astype(np.int64)
+        occ = np.diff(np.diff(np.diff(T, axis=0), axis=1), axis=2) > 0
+        n = -(-np.asarray(occ.shape) // COARSE)
+        padded = np.zeros(tuple(n * COARSE), dtype=bool)
+        padded[: occ.shape[0], : occ.shape[1], : occ.shape[2]] = occ
+        blocks = padded.reshape(n[0], COARSE, n[1], COARSE, n[2], COARSE).any(axis=(1, 3, 5))
+        table = np.zeros(tuple(n + 1), dtype=np.int32)
+        table[1:, 1:, 1:] = blocks.astype(np.int32).cumsum(0).cumsum(1).cumsum(2)
+        return table
+
+
+COARSE = 8
+"""Voxels per side of :attr:`TouchGrid.coarse`'s blocks."""
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _box_sum(T, x0, y0, z0, x1, y1, z1):  # pragma: no cover - compiled
+    return (
+        T[x1, y1, z1] - T[x0, y1, z1] - T[x1, y0, z1] - T[x1, y1, z0]
+        + T[x0, y0, z1] + T[x0, y1, z0] + T[x1, y0, z0] - T[x0, y0, z0]
+    )
 
 
 @nb.njit(cache=True, nogil=True)
-def _any_in(T, origin, pitch, lo, hi, out):  # pragma: no cover - compiled
-    """:meth:`TouchGrid.any_in`, one box at a time (numpy's eight gathers of every box
-    cost ~0.4 ms for 4,000 boxes)."""
+def _any_in(T, C, k, origin, pitch, lo, hi, out):  # pragma: no cover - compiled
+    """:meth:`TouchGrid.any_in`, one box at a time: the blocks (``C``, ``k`` voxels a
+    side) the box's voxels lie in first, the voxels only when a block is marked."""
     n0, n1, n2 = T.shape[0] - 1, T.shape[1] - 1, T.shape[2] - 1
     for i in range(lo.shape[0]):
         x0 = min(max(np.int64(np.floor((lo[i, 0] - origin[0]) / pitch)), 0), n0)
@@ -578,11 +605,10 @@ def _any_in(T, origin, pitch, lo, hi, out):  # pragma: no cover - compiled
         x1 = min(max(np.int64(np.floor((hi[i, 0] - origin[0]) / pitch)) + 1, 0), n0)
         y1 = min(max(np.int64(np.floor((hi[i, 1] - origin[1]) / pitch)) + 1, 0), n1)
         z1 = min(max(np.int64(np.floor((hi[i, 2] - origin[2]) / pitch)) + 1, 0), n2)
-        total = (
-            T[x1, y1, z1] - T[x0, y1, z1] - T[x1, y0, z1] - T[x1, y1, z0]
-            + T[x0, y0, z1] + T[x0, y1, z0] + T[x1, y0, z0] - T[x0, y0, z0]
-        )
-        out[i] = total > 0
+        if _box_sum(C, x0 // k, y0 // k, z0 // k, -(-x1 // k), -(-y1 // k), -(-z1 // k)) == 0:
+            out[i] = False
+            continue
+        out[i] = _box_sum(T, x0, y0, z0, x1, y1, z1) > 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -816,6 +842,7 @@ class StaticModel:
         """Build now what the cycles would build on first use (the triangle grid of
         :meth:`boxes_meet`), so that no cycle pays for it."""
         _ = self._triangle_grid
+        _ = self.touch.coarse
 
     @functools.cached_property
     def _triangle_grid(self) -> TriangleGrid | None:
