@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Generic, NamedTuple, TypeVar
 
 import manifold3d as m3
+import numba as nb
 import numpy as np
 from scipy.spatial import ConvexHull
 
@@ -373,7 +374,7 @@ class Monitor:
                 {name: mesh for name, mesh in geometry.items() if name in moving}
             )
             self._padded: PaddedPieces | None = PaddedPieces.build(robot.link_convex_pieces(), self._padding)
-            self._shell_planes = _shell_planes(self._padded, cell.plausibility.shell_thickness)
+            self._shell_planes = _ShellPlanes(_shell_planes(self._padded, cell.plausibility.shell_thickness))
             self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
             self._static_distance: StaticDistance | None = StaticDistance(
                 self._distance_model, ChunkedMesh.of_manifold(self.static.region), self._static_contains
@@ -382,7 +383,7 @@ class Monitor:
             self._static_distance = None
             self._distance_model = None
             self._padded = None
-            self._shell_planes = []
+            self._shell_planes = _ShellPlanes([])
             self._piece_spheres = []
         self.reset()
 
@@ -764,7 +765,7 @@ class Monitor:
         ctx = DynamicContext(
             **{
                 **self._dyn_ctx.__dict__,
-                "robot_shell_planes": tuple(_planes_world(p, T_links[n]) for n, p in self._shell_planes),
+                "robot_shell_planes": self._shell_planes.world(T_links),
                 "robot_spheres": spheres,
                 "previous_lo": self._prev_lo,
                 "previous_hi": self._prev_hi,
@@ -1212,9 +1213,37 @@ def _shell_planes(padded: PaddedPieces, thickness: float) -> list[tuple[str, Arr
     return out
 
 
-def _planes_world(planes: ArrayF64, T: ArrayF64) -> ArrayF64:
-    n = planes[:, :3] @ T[:3, :3].T
-    return np.column_stack([n, planes[:, 3] + n @ T[:3, 3]])
+class _ShellPlanes:
+    """Every padded piece's shell planes (link frame), moved to the world in one batch."""
+
+    def __init__(self, planes: list[tuple[str, ArrayF64]]) -> None:
+        self._links = [n for n, _ in planes]
+        self._flat = np.concatenate([p for _, p in planes]).reshape(-1, 4) if planes else np.zeros((0, 4))
+        self._piece = np.repeat(np.arange(len(planes)), [len(p) for _, p in planes]).astype(np.int64)
+        self._splits = np.cumsum([len(p) for _, p in planes])[:-1]
+
+    def world(self, T_links: Mapping[str, ArrayF64]) -> tuple[ArrayF64, ...]:
+        """(F_i, 4) planes ``n . x <= d`` of every piece in the world frame."""
+        if not self._links:
+            return ()
+        T = np.array([T_links[n] for n in self._links], dtype=np.float64)
+        out = np.empty_like(self._flat)
+        _move_planes(self._flat, self._piece, T, out)
+        return tuple(np.split(out, self._splits))
+
+
+@nb.njit(cache=True, nogil=True)
+def _move_planes(planes, piece, T, out):  # pragma: no cover - compiled
+    """Planes ``n . x <= d`` (F, 4) of piece ``piece[f]`` from its frame to the world
+    (``T`` (P, 4, 4), world from piece): ``n' = R n``, ``d' = d + n' . t``."""
+    for f in range(planes.shape[0]):
+        p = piece[f]
+        dot = 0.0
+        for a in range(3):
+            x = T[p, a, 0] * planes[f, 0] + T[p, a, 1] * planes[f, 1] + T[p, a, 2] * planes[f, 2]
+            out[f, a] = x
+            dot += x * T[p, a, 3]
+        out[f, 3] = planes[f, 3] + dot
 
 
 def _at_robot(boxes: np.ndarray, rasters: list[RobotRaster | None]) -> np.ndarray:
