@@ -24,6 +24,7 @@ it, and faults latch until :meth:`Monitor.reset`.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import weakref
@@ -118,6 +119,16 @@ class _CycleGeometry:
     lease: object = None  # holds the cycle's images (see _Pool)
     cache: dict[str, m3.Manifold] = field(default_factory=dict)
 
+    @functools.cached_property
+    def pieces(self) -> ArrayF64:
+        """(N, 8, 3) all dynamic pieces before the rules (with the memory's)."""
+        return np.concatenate(self.pieces_parts)
+
+    @functools.cached_property
+    def kept(self) -> ArrayF64:
+        """(K, 8, 3) the kept dynamic pieces, then the sheet boxes."""
+        return np.concatenate([self.kept_pieces, self.sheet_boxes])
+
     def get(self, name: str) -> m3.Manifold:
         if name not in self.cache:
             self.cache[name] = self._build(name)
@@ -134,7 +145,7 @@ class _CycleGeometry:
         if name == "region":
             return check_manifold(s.region + self.get("region_dynamic"), "region R3")
         if name == "region_r2":
-            dyn = _hexahedra_manifold(np.concatenate(self.pieces_parts)) ^ self.zone
+            dyn = _hexahedra_manifold(self.pieces) ^ self.zone
             return check_manifold((s.region_r2 + dyn) - s.solids - self.robot_body(), "region R2")
         if name == "hull":
             return check_manifold(s.hull + (_hexahedra_manifold(self.full_pieces()) ^ self.zone), "hull C")
