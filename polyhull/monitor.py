@@ -81,6 +81,7 @@ from .engine.pixels import (
 from .engine.refine import FRONT_SLACK, MEMORY, OWN, REACH_EXTRA, SPARED, RegionRules, refine_kept
 from .engine.robot_raster import PaddedPieces, RasterBuffers, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
+from .engine.threads import share
 from .errors import PolyhullError
 from .frames import DepthFrame
 from .occlusion import robot_occlusion
@@ -665,8 +666,8 @@ class Monitor:
         free_stack, end_stack, pyramids = bufs.free, bufs.end, bufs.pyramids
         pixel_bufs = bufs.pixels
 
-        # each camera's robot raster, then its pixels, on the pool's threads (one task a
-        # camera: no wait for the other cameras' rasters); the raster stage's time runs
+        # each camera's robot raster, then its pixels, on this thread and one of the pool's
+        # (one task a camera: no wait for the other cameras' rasters); the raster stage's time runs
         # until the last raster is done, the pixel stage's from then on
         t0 = time.perf_counter()
         raster_done = [t0] * len(cell.cameras)
@@ -679,7 +680,7 @@ class Monitor:
             raster_done[i] = time.perf_counter()
             return raster, self._camera_pixels(i, usable, raster, pixel_bufs[i], pyramids)
 
-        done = list(self._pool.map(camera, range(len(cell.cameras))))
+        done = share(self._pool, camera, range(len(cell.cameras)))
         rasters: dict[str, RobotRaster] = {
             cam.name: r for cam, (r, _) in zip(cell.cameras, done, strict=True) if r is not None
         }

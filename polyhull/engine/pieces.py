@@ -40,6 +40,7 @@ import numpy as np
 from ..camera import Camera
 from ..typed import ArrayF64
 from .pixels import build_pyramid, project_bounds, push_row, pyramid_layout, update_pyramid
+from .threads import share
 
 __all__ = [
     "CameraStack",
@@ -559,8 +560,8 @@ def carve(
     that crosses the height ``z`` [m] (the top of the floor's noise sheet) within ``reach``
     of that offset is split down to ``size_min`` too.
 
-    With a ``pool`` (two workers or more) and enough pieces, the initial pieces are carved
-    in two halves on its threads (every piece is carved on its own, so the result is the
+    With a ``pool`` and enough pieces, the initial pieces are carved in two halves, on
+    this thread and one of the pool's (:func:`polyhull.engine.threads.share`; every piece is carved on its own, so the result is the
     same set of pieces; the halves' outputs are concatenated, the first half's first), each
     half with half the piece budget.
 
@@ -590,7 +591,7 @@ def carve(
         return b, piece_vertices(b, stack), bool(o)
 
     # interleaved halves: neighbouring tiles (similar work) go to both threads
-    done = list(pool.map(half, (initial[0::2], initial[1::2])))
+    done = share(pool, half, (initial[0::2], initial[1::2]))
     return (
         PieceSet(np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])),
         any(d[2] for d in done),

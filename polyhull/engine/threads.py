@@ -1,0 +1,49 @@
+"""Work shared between the calling thread and one of a pool's.
+
+The engine's parallel stages (each camera's raster and pixels, the two halves of a carve)
+run on the calling thread and one pool thread, each taking the next item when it is done:
+the calling thread works instead of waiting, and only one sleeping thread has to wake
+(on this machine a wake-up costs 0.1 to 0.4 ms in the median, several ms at worst).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor
+from typing import TypeVar
+
+__all__ = ["share"]
+
+_I = TypeVar("_I")
+_R = TypeVar("_R")
+
+
+def share(pool: Executor | None, fn: Callable[[_I], _R], items: Sequence[_I]) -> list[_R]:
+    """``[fn(x) for x in items]``, computed on this thread and one of ``pool``'s (in this
+    thread alone without a pool or with fewer than two items). ``fn`` must be safe to run
+    on two items at once. When ``fn`` raises, the other thread finishes its item first
+    (nothing runs on after the call returns or raises), then the error is raised."""
+    if pool is None or len(items) < 2:
+        return [fn(x) for x in items]
+    out: list[_R | None] = [None] * len(items)
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+
+    def work() -> None:
+        while True:
+            with lock:
+                i = next(order, None)
+            if i is None:
+                return
+            out[i] = fn(items[i])
+
+    other = pool.submit(work)
+    try:
+        work()
+    finally:
+        # wait for the other thread in any case; its error, if this one had none
+        error = other.exception()
+    if error is not None:
+        raise error
+    return out  # type: ignore[return-value]
