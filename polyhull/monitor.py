@@ -836,7 +836,7 @@ class Monitor:
             "distance",
             lambda: refine_kept(
                 allp.select(result.keep), flags, result.inside[result.keep], rules,
-                np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure,
+                np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure, self._pool,
             ),
         )
         dist, sheet_boxes = refined.distance, refined.sheets
@@ -1053,7 +1053,7 @@ class Monitor:
         pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
         if not len(pieces):
             return pieces
-        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), lo, hi))
+        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), lo, hi, self._pool))
 
     def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""

@@ -3,6 +3,8 @@ and boxes against triangles (python-fcl's box-against-mesh collision as the orac
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import fcl
 import numpy as np
 import pytest
@@ -12,6 +14,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from polyhull.engine.boxes import (
+    ANY_PARALLEL_MIN,
     TriangleGrid,
     any_overlap,
     group_bounds,
@@ -79,6 +82,16 @@ def test_any_overlap_is_brute_force(seed: int, n: int, m: int) -> None:
     blo, bhi = _random_boxes(seed + 1, m, 2.0)
     expected = _meets(qlo, qhi, blo, bhi).any(axis=1) if m else np.zeros(n, dtype=bool)
     assert np.array_equal(any_overlap(qlo, qhi, blo, bhi), expected)
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(ANY_PARALLEL_MIN, ANY_PARALLEL_MIN + 300))
+def test_any_overlap_on_two_threads_is_the_same(seed: int, n: int) -> None:
+    """Many queries, split over two threads: the same answers, in the queries' order."""
+    qlo, qhi = _random_boxes(seed, n, 2.0)
+    blo, bhi = _random_boxes(seed + 1, 60, 2.0)
+    with ThreadPoolExecutor(2) as pool:
+        assert np.array_equal(any_overlap(qlo, qhi, blo, bhi, pool), _meets(qlo, qhi, blo, bhi).any(axis=1))
 
 
 def _fcl_meets(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -16,6 +16,7 @@ with the exact triangle/box overlap test (separating axes, Akenine-Moller 2001).
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import numba as nb
@@ -23,6 +24,7 @@ import numpy as np
 
 from ..errors import GeometryError
 from ..typed import ArrayF64
+from .threads import share
 
 __all__ = ["overlap_groups", "group_bounds", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
 
@@ -194,8 +196,12 @@ def _any(qlo, qhi, blo, bhi, order, keys, extent, out):  # pragma: no cover - co
             out[i] = True
 
 
-def any_overlap(qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> np.ndarray:
-    """(N,) whether each query box [qlo, qhi] (N, 3) meets any box [blo, bhi] (M, 3)."""
+def any_overlap(
+    qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64, pool: Executor | None = None
+) -> np.ndarray:
+    """(N,) whether each query box [qlo, qhi] (N, 3) meets any box [blo, bhi] (M, 3).
+    With a ``pool`` and many queries, the queries are split over this thread and one of the
+    pool's."""
     out = np.zeros(qlo.shape[0], dtype=bool)
     if qlo.shape[0] == 0 or blo.shape[0] == 0:
         return out
@@ -208,13 +214,30 @@ def any_overlap(qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> n
     ext = bhi[:, 0] - blo[:, 0]
     k = (9 * (len(ext) - 1)) // 10
     cut = float(np.partition(ext, k)[k])  # about the 90th percentile (a split, not a statistic)
+    passes = []
     for part in (np.nonzero(ext <= cut)[0], np.nonzero(ext > cut)[0]):
         if len(part) == 0:
             continue
         order = part[np.argsort(blo[part, 0], kind="stable")]
-        keys = np.ascontiguousarray(blo[order, 0])
-        _any(qlo, qhi, blo, bhi, order, keys, float(ext[part].max()), out)
+        passes.append((order, np.ascontiguousarray(blo[order, 0]), float(ext[part].max())))
+
+    def run(sl: slice) -> np.ndarray:
+        o = np.zeros(len(range(*sl.indices(len(qlo)))), dtype=bool)
+        ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
+        for order, keys, extent in passes:
+            _any(ql, qh, blo, bhi, order, keys, extent, o)
+        return o
+
+    if pool is None or len(qlo) < ANY_PARALLEL_MIN:
+        return run(slice(None))
+    # interleaved halves: neighbouring queries (similar work) go to both threads
+    even, odd = share(pool, run, (slice(0, None, 2), slice(1, None, 2)))
+    out[0::2], out[1::2] = even, odd
     return out
+
+
+ANY_PARALLEL_MIN = 512
+"""Fewest queries :func:`any_overlap` splits over two threads."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -412,7 +412,9 @@ def in_shells(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     return _in_shell(vertices, ctx) | _in_sheets(vertices, ctx)
 
 
-def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: DynamicContext) -> np.ndarray:
+def shell_cuts(
+    vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: DynamicContext, pool: Executor | None = None
+) -> np.ndarray:
     """(N,) the pieces the part-wise ``too_thin`` rule removes: inside a shell
     (``inside``), not ``spared``, and farther than ``floor_shell_margin`` from every piece
     outside the shells (of any component: a superset of "of its own", keeps more)."""
@@ -420,7 +422,7 @@ def shell_cuts(vertices: ArrayF64, inside: np.ndarray, spared: np.ndarray, ctx: 
     if cut.any() and (~inside).any():
         lo, hi = vertex_bounds(vertices)
         m = ctx.params.floor_shell_margin
-        cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m)
+        cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m, pool)
     return cut
 
 
@@ -493,7 +495,7 @@ def judge_dynamic(
     spared = boundary[labels] & p.keep_at_boundary
     shell_cut = np.zeros(n, dtype=bool)
     if p.too_thin:
-        shell_cut = shell_cuts(vertices, inside, spared, ctx)
+        shell_cut = shell_cuts(vertices, inside, spared, ctx, pool)
     small = np.zeros(K, dtype=bool)
     if p.too_small:
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)

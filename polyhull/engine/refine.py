@@ -36,6 +36,7 @@ to a finer description of the same set.
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import Executor
 from typing import Any, NamedTuple
 
 import numba as nb
@@ -211,13 +212,15 @@ def refine_kept(
     alpha: float,
     recarve: Recarve,
     measure: Callable[[ArrayF64, Any], Any],
+    pool: Executor | None = None,
 ) -> Refined:
     """Carve again the kept pieces (``kept`` with their ``flags`` and whether each is
     ``inside`` a shell) that can decide the distance to the robot (see the module
     docstring); ``alpha`` is the carve's size budget per metre of distance (a piece larger
     than that budget, counted from the frontier, is carved again); ``measure(vertices,
     best)`` gives the distance result (``.distance``) of the region with these dynamic
-    hexahedra, or ``best`` (a result of another part) if that is nearer."""
+    hexahedra, or ``best`` (a result of another part) if that is nearer. ``pool``: the
+    shell rule's box tests are shared with one of its threads."""
     margin = rules.margin
     reach = REACH_EXTRA + margin  # farthest behind the frontier that is refined
     cross = rules.crossing(kept.vertices)
@@ -285,10 +288,10 @@ def refine_kept(
             lo, hi = vertex_bounds(kept.vertices)
             test = inside & ~cut & ((flags & SPARED) == 0)
             old = np.nonzero(test[:n_rest])[0]  # only those that can be cut ask
-            test[old] = any_overlap(lo[old], hi[old], changed_lo - margin, changed_hi + margin)
+            test[old] = any_overlap(lo[old], hi[old], changed_lo - margin, changed_hi + margin, pool)
             if test.any():
                 keepers = ~inside
-                cut[test] = ~any_overlap(lo[test], hi[test], lo[keepers] - margin, hi[keepers] + margin)
+                cut[test] = ~any_overlap(lo[test], hi[test], lo[keepers] - margin, hi[keepers] + margin, pool)
         near_sheets, result = region(movable, None)
         sheets = np.concatenate([far_sheets, near_sheets])
         if far_lower < float(result.distance):
