@@ -1008,7 +1008,6 @@ class Monitor:
         assert self._seed_lo is not None and self._seed_hi is not None
         lo = self._seed_lo - reach
         hi = self._seed_hi + reach
-        parts = []
         # Reused every cycle: "no segment" everywhere except the robot's rectangle of each
         # camera (written below, and reset the next cycle).
         if self._mem_stacks is None:
@@ -1016,7 +1015,10 @@ class Monitor:
             self._mem_rects = [None] * len(self.cell.cameras)
         mem_free, mem_end = self._mem_stacks
         tile = self.cell.reconstruction.tile
-        for i, (cam, s) in enumerate(zip(self.cell.cameras, self.static.cameras, strict=True)):
+
+        def camera(i: int) -> np.ndarray | None:
+            # one camera's memory segments as tiles (thread-safe: camera i's images only)
+            cam, s = self.cell.cameras[i], self.static.cameras[i]
             raster = rasters.get(cam.name)
             free = free_imgs[i]
             prev = self._mem_rects[i]
@@ -1025,7 +1027,7 @@ class Monitor:
                 mem_end.image(i)[prev] = -np.inf
                 self._mem_rects[i] = None
             if raster is None or free is None or raster.rect is None:
-                continue
+                return None
             u0, u1, v0, v1 = raster.rect
             # the grown seed boxes behind the robot's nearest back depth, as pixel
             # rectangles within the covered pixels' rectangle
@@ -1043,10 +1045,13 @@ class Monitor:
                 rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw], tile,
             )
             tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)
-            if len(tiles):
-                tiles[:, 0:2] += tu0
-                tiles[:, 2:4] += tv0
-                parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
+            if not len(tiles):
+                return None
+            tiles[:, 0:2] += tu0
+            tiles[:, 2:4] += tv0
+            return np.column_stack([np.full(len(tiles), float(i)), tiles])
+
+        parts = [p for p in share(self._pool, camera, range(len(self.cell.cameras))) if p is not None]
         if not parts:
             return PieceSet.empty()
         # carved by the cameras' free depth; split along the memory segments
