@@ -135,20 +135,21 @@ class PixelBuffers:
     """One camera's free depth, segment ends and invalid flags, kept from cycle to cycle.
 
     Between cycles they hold the last classification; what differs from the static
-    images (``free0``, ``f_s``, no invalid pixel) lies in the blocks of :attr:`dirty` and,
+    images (``free0``, ``f_s``, no invalid pixel) lies in the chunks of :attr:`dirty` and,
     for the segment ends, in the robot's rectangle :attr:`rect`. The next classification
-    restores only those, so a cycle reads and writes the whole images only where the
-    scene is not static (a copy of three images a camera costs more than the rest of the
-    classification: the cycle is bound by memory traffic).
+    writes only the chunks it classifies or the last one wrote, so a cycle reads and
+    writes the whole images only where the scene is not static (a copy of three images a
+    camera costs more than the rest of the classification: the cycle is bound by memory
+    traffic).
 
     Attributes:
         free: (H, W) float32 free depth.
         end: (H, W) float32 segment ends.
         invalid: (H, W) pixels with no usable reading.
-        dirty: (ceil(H / BLOCK), ceil(W / BLOCK)) blocks where ``free`` or ``invalid``
-            differ from the static images.
-        changed: Blocks restored or written by the last classification (where the free
-            depth pyramids must be updated).
+        dirty: (H, ceil(W / CHUNK)) row chunks where ``free`` or ``invalid`` differ from
+            the static images.
+        changed: (ceil(H / BLOCK), ceil(W / BLOCK)) blocks the last classification wrote
+            (where the free depth pyramids must be updated).
         rect: (u0, u1, v0, v1) where ``end`` may differ from ``f_s`` (empty: u1 < u0).
     """
 
@@ -161,51 +162,36 @@ class PixelBuffers:
         self.free[:] = static.free0
         self.end[:] = free_static
         self.invalid = np.zeros((H, W), dtype=np.bool_)
-        shape = (-(-H // BLOCK), -(-W // BLOCK))
-        self.dirty = np.zeros(shape, dtype=np.bool_)
-        self.changed = np.zeros(shape, dtype=np.bool_)
+        self.dirty = np.zeros((H, -(-W // CHUNK)), dtype=np.bool_)
+        self.changed = np.zeros((-(-H // BLOCK), -(-W // BLOCK)), dtype=np.bool_)
         self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
 
 
 @nb.njit(cache=True, nogil=True)
-def _restore(fs, free0, free, end, invalid, dirty, changed, prev_rect):  # pragma: no cover - compiled
-    """Put back the static images where the last classification wrote them."""
-    H, W = free.shape
-    for bv in range(dirty.shape[0]):
-        for bu in range(dirty.shape[1]):
-            changed[bv, bu] = dirty[bv, bu]
-            if not dirty[bv, bu]:
-                continue
-            dirty[bv, bu] = False
-            for v in range(bv * BLOCK, min((bv + 1) * BLOCK, H)):
-                for u in range(bu * BLOCK, min((bu + 1) * BLOCK, W)):
-                    free[v, u] = free0[v, u]
-                    invalid[v, u] = False
-    for v in range(prev_rect[2], prev_rect[3] + 1):
-        for u in range(prev_rect[0], prev_rect[1] + 1):
-            end[v, u] = fs[v, u]
-
-
-@nb.njit(cache=True, nogil=True)
-def _classify(depth, band, B, T, U, fs, free0, shadow, rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
-    """Classify a frame into buffers holding the static images (:func:`_restore`): only
-    the chunks of pixels holding a reading not surely in the band (the packed ``band`` of
+def _classify(depth, band, B, T, U, fs, free0, shadow, rect, prev_rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+    """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
+    only the row chunks holding a reading not surely in the band (the packed ``band`` of
     :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
-    near``, except NaN) are classified pixel by pixel. A static pixel frees ``free0`` and its segment
-    (to ``f_s``, or to the robot's shadow start) is empty. Marks in ``dirty`` (and
-    ``changed``) the blocks where ``out_free`` or ``out_invalid`` now differ from the
-    static images."""
+    near``, except NaN) are classified pixel by pixel, and written whole; a chunk the last
+    classification wrote and this one does not is put back to the static images. A static
+    pixel frees ``free0`` and its segment (to ``f_s``, or to the robot's shadow start) is
+    empty. ``dirty`` and ``changed`` are updated (see :class:`PixelBuffers`)."""
     H, W = depth.shape
     out_tiles[:, :] = False
+    changed[:, :] = False
     su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
     n_far = 0
     n_seg = 0
+    for v in range(prev_rect[2], prev_rect[3] + 1):  # the last robot rectangle's ends
+        for u in range(prev_rect[0], prev_rect[1] + 1):
+            out_end[v, u] = fs[v, u]
     for v in range(sv0, sv1 + 1):  # the shadow image is +inf outside the rectangle
         for u in range(su0, su1 + 1):
             out_end[v, u] = min(fs[v, u], shadow[v, u])
     for v in range(H):
-        for c0 in range(0, W, CHUNK):
+        for ci in range(dirty.shape[1]):
+            c0 = ci * CHUNK
             c1 = min(c0 + CHUNK, W)
             hit = False
             for u in range(c0, c1):
@@ -214,11 +200,23 @@ def _classify(depth, band, B, T, U, fs, free0, shadow, rect, near, far, a, tmin,
                 tq = np.float32(p & 0xFFFF)
                 uq = np.float32(p >> 16)
                 hit |= not (dm >= tq and (dm <= uq or uq == np.float32(65535.0)))
+            was = dirty[v, ci]
             if not hit:
+                if was:  # back to the static images
+                    for u in range(c0, c1):
+                        out_free[v, u] = free0[v, u]
+                        out_invalid[v, u] = False
+                    dirty[v, ci] = False
+                    changed[v // BLOCK, c0 // BLOCK] = True
+                    changed[v // BLOCK, (c1 - 1) // BLOCK] = True
                 continue
+            now = False
             for u in range(c0, c1):
                 d = np.float64(depth[v, u])
                 if d >= T[v, u] and d <= U[v, u]:
+                    if was:
+                        out_free[v, u] = free0[v, u]
+                        out_invalid[v, u] = False
                     continue
                 f_s = np.float64(fs[v, u])
                 bad = False
@@ -236,7 +234,6 @@ def _classify(depth, band, B, T, U, fs, free0, shadow, rect, near, far, a, tmin,
                         de = near
                     if not usable:
                         n_invalid += 1
-                        out_invalid[v, u] = True
                         bad = True
                         f = near
                     elif is_color:
@@ -252,13 +249,16 @@ def _classify(depth, band, B, T, U, fs, free0, shadow, rect, near, far, a, tmin,
                 fr = np.float32(free)
                 if fr > free:
                     fr = np.nextafter(fr, np.float32(-np.inf))
-                if fr != free0[v, u] or bad:
-                    out_free[v, u] = fr
-                    dirty[v // BLOCK, u // BLOCK] = True
-                    changed[v // BLOCK, u // BLOCK] = True
+                out_free[v, u] = fr
+                out_invalid[v, u] = bad
+                now |= fr != free0[v, u] or bad
                 if fr < end:
                     n_seg += 1
                     out_tiles[v // tile, u // tile] = True
+            dirty[v, ci] = now
+            if now or was:
+                changed[v // BLOCK, c0 // BLOCK] = True
+                changed[v // BLOCK, (c1 - 1) // BLOCK] = True
     return n_seg, n_invalid, n_far
 
 
@@ -311,13 +311,12 @@ def classify_frame(
     rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     b = buffers
-    _restore(free_static, static.free0, b.free, b.end, b.invalid, b.dirty, b.changed, b.rect)
-    b.rect = rect
     n_seg, n_invalid, n_far = _classify(
         depth, static.band, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
-        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
+        b.rect, float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
+    b.rect = rect
     seen = max(static.seen, 1)
     return PixelClasses(b.free, b.end, int(n_seg), b.invalid, n_invalid / seen, n_far / seen, out_tiles)
 
