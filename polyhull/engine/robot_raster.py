@@ -419,18 +419,26 @@ class RasterBuffers:
     def take(self) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
         """The images, reset to "not covered"."""
         if self._rect is not None:
-            u0, u1, v0, v1 = self._rect
-            covered, front, back, start = self._images
-            covered[v0 : v1 + 1, u0 : u1 + 1] = False
-            front[v0 : v1 + 1, u0 : u1 + 1] = np.inf
-            back[v0 : v1 + 1, u0 : u1 + 1] = -np.inf
-            start[v0 : v1 + 1, u0 : u1 + 1] = np.inf
+            _reset(*self._images, *self._rect)
             self._rect = None
         return self._images
 
     def written(self, rect: tuple[int, int, int, int] | None) -> None:
         """Record the rectangle the images were written in."""
         self._rect = rect
+
+
+@nb.njit(cache=True, nogil=True)
+def _reset(covered, front, back, start, u0, u1, v0, v1):  # pragma: no cover - compiled
+    """Reset the covered pixels of ``[u0, u1] x [v0, v1]`` to "not covered" (the images
+    are written only there: about half of the rectangle)."""
+    for v in range(v0, v1 + 1):
+        for u in range(u0, u1 + 1):
+            if covered[v, u]:
+                covered[v, u] = False
+                front[v, u] = np.inf
+                back[v, u] = -np.inf
+                start[v, u] = np.inf
 
 
 def _empty_images(H: int, W: int) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
