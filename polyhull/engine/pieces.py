@@ -324,6 +324,8 @@ def _carve(
             )
             if inside and zmin > near[i] and zmax < lo:
                 n_cover += 1
+                if n_cover >= k_of_n:
+                    break  # seen free by enough cameras: dropped whatever the others see
             elif zmin < hi:
                 n_maybe += 1
         if n_cover >= k_of_n:
