@@ -127,8 +127,8 @@ CHUNK = 16
 test); a chunk holding one is classified pixel by pixel."""
 
 BLOCK = 8
-"""Edge [px] of the blocks in which :class:`PixelBuffers` track what differs from the
-static images (level 3 of the free depth pyramids)."""
+"""Edge [px] of the blocks in which :class:`PixelBuffers` mark what a classification wrote
+(:attr:`PixelBuffers.changed`): level 3 of the free depth pyramids, updated only there."""
 
 
 class PixelBuffers:

@@ -23,7 +23,9 @@ def share(pool: Executor | None, fn: Callable[[_I], _R], items: Sequence[_I]) ->
     """``[fn(x) for x in items]``, computed on this thread and one of ``pool``'s (in this
     thread alone without a pool or with fewer than two items). ``fn`` must be safe to run
     on two items at once. When ``fn`` raises, the other thread finishes its item first
-    (nothing runs on after the call returns or raises), then the error is raised."""
+    (nothing runs on after the call returns or raises), then the error is raised. Call it
+    from a thread outside ``pool`` (the engine calls it from the monitor's thread): from
+    inside a pool with no free thread it would wait forever."""
     if pool is None or len(items) < 2:
         return [fn(x) for x in items]
     out: list[_R | None] = [None] * len(items)
