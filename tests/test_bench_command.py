@@ -64,6 +64,10 @@ def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ig
     assert 0 <= empty["kept_pieces"]["min"] <= empty["kept_pieces"]["max"]
     assert 0 <= empty["cycles_with_kept_pieces"] <= 2 and 0 <= empty["cycles_distance_off_static"] <= 2
     assert 0.0 <= empty["speed_scale"]["min"] <= 1.0
+    added = empty["dynamic_volume_outside_static_l"]
+    assert 0.0 <= added["min"] <= added["median"] <= added["max"]
+    assert empty["min_volume_l"] == pytest.approx(1.0)  # the default cell's too-small threshold
+    assert 0 <= empty["cycles_dynamic_volume_over_min_volume"] <= 2
     assert empty["distance_m"]["min"] is None or empty["distance_m"]["min"] >= 0
 
 

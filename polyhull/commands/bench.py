@@ -13,7 +13,8 @@ Five parts, on one monitor (the static model is built once):
    depth hull C of the cycle's frames against the engine's region R2, and R2 against the
    exact hull with the static band (the engine's declared tolerance, :func:`banded_free`);
 4. the empty cell: nobody present, the robot moving, every sensor effect on: the dynamic
-   pieces kept, and whether the distance departs from the static region's own distance;
+   pieces kept, their volume outside the static hull C_static (:func:`dynamic_volume_outside_static`),
+   and whether the distance departs from the static region's own distance;
 5. with ``--peers N``: OctoMap on the frames of the last N timed cycles, side by side with
    the verdicts (:mod:`polyhull.peers`, the optional ``peers`` extra).
 """
@@ -49,6 +50,7 @@ __all__ = [
     "engine_r2",
     "padded_robot_shadow",
     "ExactHullGap",
+    "dynamic_volume_outside_static",
 ]
 
 DT = 0.1
@@ -318,6 +320,21 @@ def tightness_and_misses(monitor: Any, frames: dict, verdict: Any, samples: int,
         "misses": int((exact & ~r2 & ~shadow).sum()),
         "misses_unexcused": int((exact & ~r2).sum()),
     }
+
+
+def dynamic_volume_outside_static(monitor: Any, verdict: Any) -> float:
+    """Volume [m^3] of a verdict's kept dynamic pieces outside the static hull C_static and
+    the solids: what this cycle adds to the static region (exact, by manifold3d booleans;
+    off the hot path, a few hundred ms). The sheet boxes under kept pieces are part of
+    R2_static, inside C_static, and add nothing here."""
+    from ..monitor import _hexahedra_manifold
+
+    geometry = verdict._geometry
+    if geometry is None or len(geometry.kept_pieces) == 0:
+        return 0.0
+    s = monitor.static
+    added = (_hexahedra_manifold(geometry.kept_pieces) ^ monitor._zone) - s.hull - s.solids
+    return float(added.volume())
 
 
 GAP_GRID = 0.025
@@ -712,6 +729,7 @@ def run_bench(
         effects = SensorEffects(uint16=True)
         monitor.reset()
         kept: list[int] = []
+        added: list[float] = []
         dists: list[float] = []
         scales: list[float] = []
         faults: set[str] = set()
@@ -725,6 +743,7 @@ def run_bench(
                     robot.link_transforms(q), static=monitor.static.bvh, static_contains=monitor._static_contains
                 ).distance
                 kept.append(v.counts.get("kept_pieces", 0))
+                added.append(dynamic_volume_outside_static(monitor, v))
                 off += int(not (v.min_distance == static or abs(v.min_distance - static) <= 0.01))
                 dists.append(v.min_distance)
                 scales.append(v.speed_scale)
@@ -734,6 +753,11 @@ def run_bench(
             "cycles": empty_cycles,
             "kept_pieces": _stats(kept),
             "cycles_with_kept_pieces": int(np.count_nonzero(kept)),
+            "dynamic_volume_outside_static_l": _stats([1e3 * a for a in added]),
+            "min_volume_l": 1e3 * monitor.cell.plausibility.min_volume,
+            "cycles_dynamic_volume_over_min_volume": int(
+                sum(a > monitor.cell.plausibility.min_volume for a in added)
+            ),
             "cycles_distance_off_static": off,
             "distance_m": _stats(dists),
             "speed_scale": _stats(scales),
@@ -868,6 +892,10 @@ def _run(args: argparse.Namespace) -> int:
               f"off the static region's by > 1 cm in {e['cycles_distance_off_static']} cycles; distance median "
               f"{_fmt(e['distance_m']['median'])} m, min {_fmt(e['distance_m']['min'])} m; speed scale median "
               f"{_fmt(e['speed_scale']['median'], '.2f')}, min {_fmt(e['speed_scale']['min'], '.2f')}")
+        a = e["dynamic_volume_outside_static_l"]
+        print(f"empty cell: dynamic volume outside C_static median {_fmt(a['median'], '.1f')} l, max "
+              f"{_fmt(a['max'], '.1f')} l; over the too-small threshold ({e['min_volume_l']:g} l) in "
+              f"{e['cycles_dynamic_volume_over_min_volume']} of {e['cycles']} cycles")
         if e["faults"]:
             print(f"  faults: {'; '.join(e['faults'])}")
     if result["peers"] is not None:
