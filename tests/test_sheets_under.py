@@ -32,9 +32,28 @@ def _context(heights: tuple[np.ndarray, ...]) -> DynamicContext:
 
 
 def _reference(vertices: np.ndarray, ctx: DynamicContext) -> np.ndarray:
-    """The rule with numpy, sheet by sheet (the engine's former implementation)."""
-    margin = ctx.params.floor_shell_margin
+    """The rule with numpy, sheet by sheet (the engine's former implementation), with the
+    boxes of pieces reaching a vertical face from above its edge hanging down to the face's
+    bottom, and the floor's sheet kept under those."""
     pairs, bounds = _crossing_pairs(vertices, ctx)
+    if len(pairs) == 0:
+        return np.zeros((0, 8, 3))
+    down = np.array([ctx.sheets[int(k)].down for k in pairs[:, 1]])
+    height = np.array([ctx.sheets[int(k)].height for k in pairs[:, 1]])
+    hang = (down >= 0) & (bounds[:, 5] < height)
+    if not hang.any():
+        return _reference_boxes(pairs, bounds, ctx, False)
+    hanging = _reference_boxes(pairs[hang], bounds[hang], ctx, True)
+    parts = [_reference_boxes(pairs[~hang], bounds[~hang], ctx, False), hanging]
+    if len(hanging):
+        p2, b2 = _crossing_pairs(hanging, ctx)
+        flat = np.array([ctx.sheets[int(k)].down < 0 for k in p2[:, 1]], dtype=bool)
+        parts.append(_reference_boxes(p2[flat], b2[flat], ctx, False))
+    return np.concatenate(parts)
+
+
+def _reference_boxes(pairs: np.ndarray, bounds: np.ndarray, ctx: DynamicContext, hang: bool) -> np.ndarray:
+    margin = ctx.params.floor_shell_margin
     out = []
     for k in np.unique(pairs[:, 1]):
         sh, hmap = ctx.sheets[int(k)], ctx.sheet_heights[int(k)]
@@ -42,6 +61,8 @@ def _reference(vertices: np.ndarray, ctx: DynamicContext) -> np.ndarray:
         sel = pairs[:, 1] == k
         a = np.maximum(bounds[sel, :2] - margin, (x0, y0))
         b = np.minimum(bounds[sel, 3:5] + margin, (x1, y1))
+        if hang and sh.down >= 0:
+            a[:, sh.down] = (x0, y0)[sh.down]
         ok = np.all(b > a, axis=1)
         a, b = a[ok], b[ok]
         if len(a) == 0:
@@ -100,3 +121,26 @@ def test_sheet_boxes_equal_the_plain_rule_and_hold_every_footprint(seed: int, n:
         W = _to_world(sh.to_local())
         world = local @ W[:, :3].T + W[:, 3]
         assert points_in_hexahedra(world, got).all()
+
+
+def test_a_body_reaching_a_table_side_from_above_keeps_the_side_sheet_down_to_the_floor() -> None:
+    """A person standing at a table: their legs lie in the table side's noise sheet
+    (thinner than it, so unseen) and only their body above the table is a dynamic piece.
+    The piece reaches into the side's sheet from above the face's upper edge without
+    crossing the sheet's top face: the sheet is kept down to the floor, and the floor's
+    sheet under it (the feet). A piece crossing the top face keeps only its footprint
+    grown by the margin, as on the floor."""
+    ctx = _context(tuple(np.full((1, 1), sh.height) for sh in SHEETS))
+    torso = box_vertices(np.array([[1.32, 0.7, 0.6]]), np.array([[1.38, 0.9, 1.0]]))
+    legs = np.array([[1.35, 0.8, 0.05], [1.35, 0.55, 0.25]])  # in the side's sheet, low
+    feet = np.array([[1.55, 0.8, 0.05]])  # in front of the side's sheet, in the floor's
+    boxes = sheets_under(torso, ctx)
+    assert points_in_hexahedra(legs, boxes).all()
+    assert points_in_hexahedra(feet, boxes).all()
+    np.testing.assert_allclose(boxes, _reference(torso, ctx), rtol=0, atol=1e-12)
+    # the same body farther out, crossing the side sheet's top face (x = 1.4): the old rule
+    crossing = box_vertices(np.array([[1.32, 0.7, 0.6]]), np.array([[1.6, 0.9, 1.0]]))
+    assert not points_in_hexahedra(legs[:1], sheets_under(crossing, ctx)).any()
+    # a piece wholly inside the side's sheet, below its edge (noise), keeps nothing
+    inside = box_vertices(np.array([[1.32, 0.7, 0.3]]), np.array([[1.38, 0.9, 0.5]]))
+    assert len(sheets_under(inside, ctx)) == 0

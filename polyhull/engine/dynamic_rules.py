@@ -46,6 +46,14 @@ extend it: ``floor_shell_height`` declares that nobody lies flatter. The pipelin
 this (:func:`sheets_under`) after the kept pieces near the robot are carved finely
 (:mod:`polyhull.engine.refine`), so that a coarse piece that only seems to cross the top
 does not bring a sheet box with it.
+
+A vertical face's sheet (a table's side) is also kept by a piece that reaches into it from
+above the face's upper edge, where that edge is lower than ``STANDING_HEIGHT``: a person
+standing at a table, whose legs are closer to its side than the sheet is thick (unseen:
+the far cameras read the side, the near ones see the table top instead) and whose body
+rises above the table. That box hangs down to the face's bottom, and the floor's sheet is
+kept under it within the margin (the feet). At a wall or a tall rack only noise reaches
+in from above, and a person standing there is seen where they cross the sheet's top face.
 """
 
 from __future__ import annotations
@@ -286,6 +294,7 @@ class _SheetArrays(NamedTuple):
     face: ArrayF64  # (S, 4) x0, y0, x1, y1 of the face in the local frame
     height: ArrayF64  # (S,)
     W: ArrayF64  # (S, 3, 4) local -> world
+    down: np.ndarray  # (S,) the local axis along world z of a vertical face, -1 otherwise
 
 
 @functools.cache
@@ -303,9 +312,10 @@ def _sheet_arrays(sheets: tuple[Sheet, ...]) -> _SheetArrays:
         face[k] = (x0, y0, x1, y1)
     height = np.array([sh.height for sh in sheets], dtype=np.float64)
     W = np.array([_to_world(m) for m in M]).reshape(S, 3, 4)
-    for a in (M, wlo, whi, face, height, W):
+    down = np.array([sh.down for sh in sheets], dtype=np.int64)
+    for a in (M, wlo, whi, face, height, W, down):
         a.setflags(write=False)
-    return _SheetArrays(M, wlo, whi, face, height, W)
+    return _SheetArrays(M, wlo, whi, face, height, W, down)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -389,9 +399,16 @@ def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     return out
 
 
+STANDING_HEIGHT = 2.0
+"""[m] A standing person rises above a vertical face's upper edge (its noise sheet's) only
+where that edge is lower than this: at a table, not at a wall or a tall rack (where only
+noise reaches in from above)."""
+
+
 def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray, ArrayF64]:
-    """Pairs (piece, sheet) where the piece crosses the sheet's top face over its face,
-    and the piece's local bounds in that sheet's frame."""
+    """Pairs (piece, sheet) where the piece crosses the top face of a horizontal sheet, or
+    reaches into (or within ``support_eps`` of) a vertical one, over its face, and the
+    piece's local bounds in that sheet's frame."""
     eps = ctx.params.support_eps
     idx, b, arr = _sheet_pairs(vertices, ctx.sheets, eps)
     if len(idx) == 0:
@@ -400,8 +417,15 @@ def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray
     f = arr.face[s]
     h = arr.height[s]
     # what stands on the surface (legs) crosses the top face; its feet, inside the
-    # sheet, lie within the margin of that crossing
-    near = (b[:, 2] <= h + eps) & (b[:, 5] >= h)
+    # sheet, lie within the margin of that crossing. A vertical face's sheet is also
+    # kept by what reaches into it from above the face's upper edge: a person standing
+    # at a table, whose legs are in the table side's sheet (thinner than it, unseen) and
+    # whose body rises above the table
+    down = arr.down[s]
+    top = np.where(down == 0, f[:, 2], f[:, 3])  # a vertical face's upper edge (world z)
+    reach = np.where(down == 0, b[:, 3], b[:, 4])
+    above = (down >= 0) & (reach >= top) & (top <= STANDING_HEIGHT)
+    near = (b[:, 2] <= h + eps) & ((b[:, 5] >= h) | above)
     near &= (b[:, 3] >= f[:, 0]) & (b[:, 0] <= f[:, 2]) & (b[:, 4] >= f[:, 1]) & (b[:, 1] <= f[:, 3])
     return idx[near], b[near]
 
@@ -621,8 +645,11 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
 
 def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
-    every piece that crosses a sheet's top face, the sheet over the piece's footprint on
-    the face, grown by ``floor_shell_margin`` and clipped to the face.
+    every piece that crosses a sheet's top face (or reaches a vertical sheet), the sheet
+    over the piece's footprint on the face, grown by ``floor_shell_margin`` and clipped to
+    the face; on a vertical face, the footprint reaches down to the face's bottom, and the
+    floor's sheet (or a top's) is kept under those boxes in turn (the feet of whoever
+    stands in the vertical sheet).
 
     Per sheet, the union of the footprints on a grid of ``SHEET_PITCH`` cells (a
     superset), as one box per run of cells along x, the run broken where the height map
@@ -635,11 +662,34 @@ def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     if len(pairs) == 0:
         return np.zeros((0, 8, 3))
     arr = _sheet_arrays(tuple(ctx.sheets))
+    # pairs kept by reaching in from above a vertical face's upper edge (not crossing its
+    # top face): their boxes hang down to the face's bottom, and the floor's sheet is
+    # kept under those in turn
+    hang = (arr.down[pairs[:, 1]] >= 0) & (bounds[:, 5] < arr.height[pairs[:, 1]])
+    if not hang.any():
+        return _boxes_of_pairs(pairs, bounds, arr, ctx)
+    hanging = _boxes_of_pairs(pairs[hang], bounds[hang], arr, ctx, down=True)
+    parts = [_boxes_of_pairs(pairs[~hang], bounds[~hang], arr, ctx), hanging]
+    if len(hanging):
+        p2, b2 = _crossing_pairs(hanging, ctx)
+        flat = arr.down[p2[:, 1]] < 0
+        parts.append(_boxes_of_pairs(p2[flat], b2[flat], arr, ctx))
+    return np.concatenate(parts)
+
+
+def _boxes_of_pairs(
+    pairs: np.ndarray, bounds: ArrayF64, arr: _SheetArrays, ctx: DynamicContext, down: bool = False
+) -> ArrayF64:
+    """:func:`_sheet_boxes` of crossing pairs (P, 2) and the pieces' local bounds (P, 6);
+    ``down``: the footprints on vertical faces reach down to the face's bottom."""
+    if len(pairs) == 0:
+        return np.zeros((0, 8, 3))
     maps = _height_maps(ctx.sheet_heights, len(ctx.sheets))
     order = np.argsort(pairs[:, 1], kind="stable")
+    hang = arr.down if down else np.full(len(arr.down), -1, dtype=np.int64)
     return _sheet_boxes(
         np.ascontiguousarray(pairs[order, 1]), np.ascontiguousarray(bounds[order]), arr.face, arr.W, arr.height,
-        maps[0], maps[1], maps[2], float(ctx.params.floor_shell_margin), SHEET_PITCH, SHEET_STEP,
+        hang, maps[0], maps[1], maps[2], float(ctx.params.floor_shell_margin), SHEET_PITCH, SHEET_STEP,
     )
 
 
@@ -671,9 +721,10 @@ def _height_maps(heights: tuple[np.ndarray, ...], n: int) -> tuple[ArrayF64, np.
 
 
 @nb.njit(cache=True, nogil=True)
-def _sheet_boxes(sheet, bounds, face, W, height, hflat, hoff, hshape, margin, pitch, step):  # pragma: no cover - compiled
+def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, margin, pitch, step):  # pragma: no cover - compiled
     """World boxes (B, 8, 3) of :func:`sheets_under` from the crossing pairs' sheets (P,)
-    (sorted) and the pieces' local bounds (P, 6)."""
+    (sorted) and the pieces' local bounds (P, 6); ``down`` (S,): the local axis along world
+    z of a vertical sheet (its footprints reach down to the face's bottom), -1 otherwise."""
     out = np.empty((64, 8, 3))
     nb_out = 0
     P = sheet.shape[0]
@@ -690,8 +741,8 @@ def _sheet_boxes(sheet, bounds, face, W, height, hflat, hoff, hshape, margin, pi
         s0 = 0
         s1 = 0
         for p in range(p0, p1):
-            a0 = max(bounds[p, 0] - margin, x0)
-            a1 = max(bounds[p, 1] - margin, y0)
+            a0 = x0 if down[k] == 0 else max(bounds[p, 0] - margin, x0)
+            a1 = y0 if down[k] == 1 else max(bounds[p, 1] - margin, y0)
             b0 = min(bounds[p, 3] + margin, x1)
             b1 = min(bounds[p, 4] + margin, y1)
             if not (b0 > a0 and b1 > a1):

@@ -264,6 +264,15 @@ class Sheet:
         """The face's rectangle in the local frame's (x, y)."""
         return _sheet_frame(self)[3]
 
+    @property
+    def down(self) -> int:
+        """For a vertical face, the local axis (0 for x, 1 for y) that runs along world z
+        (upward); -1 for a horizontal one (the floor, an obstacle's top)."""
+        if self.axis == 2:
+            return -1
+        M = _sheet_frame(self)[0]
+        return 0 if M[0, 2] != 0.0 else 1
+
 
 @functools.cache
 def _sheet_frame(sheet: Sheet) -> tuple[np.ndarray, ArrayF64, ArrayF64, tuple[tuple[float, float], tuple[float, float]]]:
