@@ -1,19 +1,21 @@
-"""A person standing at a table in the paper cell keeps their legs in R3.
+"""A person standing at a table, or in the corner between the rack and a wall, keeps their
+legs in R3 (paper cell).
 
 Found by a randomised search of the point oracle (people, poses, robot q): a person
-reaching over the south table with their legs against its side. The legs lie in the
-noise sheet in front of the table's side (closer to it than the sheet is thick, so the
-far cameras read the table's side there and the near ones see the table top instead),
-and the static model removes that sheet at precompute. Only the body above the table is
-a dynamic piece; it reaches the side's sheet from above its upper edge, so the sheet is
-kept from there down to the floor (:func:`polyhull.engine.dynamic_rules.sheets_under`).
+reaching over the south table with their legs against its side, and one reaching in the
+corner north of the rack. The legs lie in the noise sheet in front of the table's (or the
+rack's) side: closer to it than the sheet is thick, so the cameras that see that side read
+the side there, and the others see the table top (or nothing) instead. The static model
+removes that sheet at precompute; what keeps it is a dynamic piece of the same body that
+reaches it: from above the table, or crossing the rack side's sheet higher up. The sheet
+is kept from there down to the floor (:func:`polyhull.engine.dynamic_rules.sheets_under`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import manifold_contains
+from conftest import exactly_possibly_occupied, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.distance import points_in_hexahedra
@@ -22,6 +24,7 @@ from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
 Q = [0.7271, -1.5896, -2.2518, 4.3725, -1.8492, -3.6519]
+Q_RACK = [-1.7347, 0.3554, -0.0456, -0.1651, 1.5069, -4.4347]
 
 
 @pytest.fixture(scope="module")
@@ -31,13 +34,22 @@ def paper() -> tuple[Monitor, Simulator]:
     return Monitor(cell, references=sim.reference()), sim
 
 
-@pytest.mark.parametrize("position", [(3.6765, 0.9125), (2.9, 0.95)])
-def test_legs_against_a_table_side_stay_in_r3(paper: tuple[Monitor, Simulator], position: tuple[float, float]) -> None:
+@pytest.mark.parametrize(
+    ("position", "yaw", "q", "effects"),
+    [
+        ((3.6765, 0.9125), -2.0091, Q, SensorEffects.none()),  # the south table's side
+        ((2.9, 0.95), -2.0091, Q, SensorEffects.none()),
+        ((0.4551, 5.2316), 2.3004, Q_RACK, SensorEffects()),  # north of the rack, by the west wall
+    ],
+)
+def test_legs_against_a_side_stay_in_r3(
+    paper: tuple[Monitor, Simulator], position: tuple[float, float], yaw: float, q: list[float], effects: SensorEffects
+) -> None:
     monitor, sim = paper
     cell = monitor.cell
-    person = make_person(pose="reaching", position=position, yaw=-2.0091)
-    q = np.asarray(Q)
-    frames = sim.render(q, targets=[person], seed=1001, stamp=1.0, effects=SensorEffects.none())
+    person = make_person(pose="reaching", position=position, yaw=yaw)
+    frames = sim.render(np.asarray(q), targets=[person], seed=1001, stamp=1.0, effects=effects)
+    q = np.asarray(q)
     monitor.reset()
     v = monitor.step(frames, q, stamp=1.0)
     assert not v.faults, v.faults
@@ -47,9 +59,16 @@ def test_legs_against_a_table_side_stay_in_r3(paper: tuple[Monitor, Simulator], 
     for o in cell.solid_obstacles:
         b0, b1 = o.mesh.bounds
         solid |= np.all((body >= b0) & (body <= b1), axis=1)
-    table = cell.solid_obstacles[0].mesh.bounds
-    legs = ~solid & (body[:, 2] < table[1][2]) & (body[:, 1] < table[1][1] + 0.4)
-    assert legs.sum() > 5  # the scene has what the test is about: legs in the side's sheet
+    # the scene has what the test is about: body points low in a side's sheet
+    sheets = [s for s in monitor.static.sheets if s.axis != 2]
+    local = [(body @ s.to_local()[:, :3].T + s.to_local()[:, 3]) for s in sheets]
+    in_sheet = np.zeros(len(body), dtype=bool)
+    for s, p in zip(sheets, local, strict=True):
+        (x0, y0), (x1, y1) = s.local_box()
+        in_sheet |= (p[:, 2] >= 0) & (p[:, 2] <= s.height) & (p[:, 0] >= x0) & (p[:, 0] <= x1) & (p[:, 1] >= y0) & (p[:, 1] <= y1)
+    assert (in_sheet & ~solid & (body[:, 2] < 0.8)).sum() > 5
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)
-    ok = in_r3 | monitor.in_robot_shadow(body) | solid
+    # flying pixels are real readings inside a person's outline: what the exact free depth
+    # frees there is excused (the point oracle's contract)
+    ok = in_r3 | monitor.in_robot_shadow(body) | solid | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"

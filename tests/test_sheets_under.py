@@ -33,20 +33,21 @@ def _context(heights: tuple[np.ndarray, ...]) -> DynamicContext:
 
 def _reference(vertices: np.ndarray, ctx: DynamicContext) -> np.ndarray:
     """The rule with numpy, sheet by sheet (the engine's former implementation), with the
-    boxes of pieces reaching a vertical face from above its edge hanging down to the face's
-    bottom, and the floor's sheet kept under those."""
+    boxes on vertical faces hanging down to the face's bottom, and the floor's sheet kept
+    under those of pieces that reach the face from above its edge."""
     pairs, bounds = _crossing_pairs(vertices, ctx)
     if len(pairs) == 0:
         return np.zeros((0, 8, 3))
     down = np.array([ctx.sheets[int(k)].down for k in pairs[:, 1]])
     height = np.array([ctx.sheets[int(k)].height for k in pairs[:, 1]])
-    hang = (down >= 0) & (bounds[:, 5] < height)
-    if not hang.any():
+    vertical = down >= 0
+    if not vertical.any():
         return _reference_boxes(pairs, bounds, ctx, False)
-    hanging = _reference_boxes(pairs[hang], bounds[hang], ctx, True)
-    parts = [_reference_boxes(pairs[~hang], bounds[~hang], ctx, False), hanging]
-    if len(hanging):
-        p2, b2 = _crossing_pairs(hanging, ctx)
+    parts = [_reference_boxes(pairs[~vertical], bounds[~vertical], ctx, False)]
+    parts.append(_reference_boxes(pairs[vertical], bounds[vertical], ctx, True))
+    above = vertical & (bounds[:, 5] < height)
+    if above.any():
+        p2, b2 = _crossing_pairs(_reference_boxes(pairs[above], bounds[above], ctx, True), ctx)
         flat = np.array([ctx.sheets[int(k)].down < 0 for k in p2[:, 1]], dtype=bool)
         parts.append(_reference_boxes(p2[flat], b2[flat], ctx, False))
     return np.concatenate(parts)
@@ -123,13 +124,14 @@ def test_sheet_boxes_equal_the_plain_rule_and_hold_every_footprint(seed: int, n:
         assert points_in_hexahedra(world, got).all()
 
 
-def test_a_body_reaching_a_table_side_from_above_keeps_the_side_sheet_down_to_the_floor() -> None:
+def test_a_body_at_a_table_side_keeps_the_side_sheet_down_to_the_floor() -> None:
     """A person standing at a table: their legs lie in the table side's noise sheet
-    (thinner than it, so unseen) and only their body above the table is a dynamic piece.
-    The piece reaches into the side's sheet from above the face's upper edge without
-    crossing the sheet's top face: the sheet is kept down to the floor, and the floor's
-    sheet under it (the feet). A piece crossing the top face keeps only its footprint
-    grown by the margin, as on the floor."""
+    (closer to it than the sheet is thick, so unseen) and only their body above the table
+    is a dynamic piece. The piece reaches into the side's sheet from above the face's upper
+    edge without crossing the sheet's top face: the sheet is kept down to the floor, and
+    the floor's sheet under it (the feet). A body crossing the side sheet's top face (seen
+    in front of the sheet) also keeps the sheet down to the floor (legs in the sheet under
+    it), and its own legs, seen, keep the floor's sheet."""
     ctx = _context(tuple(np.full((1, 1), sh.height) for sh in SHEETS))
     torso = box_vertices(np.array([[1.32, 0.7, 0.6]]), np.array([[1.38, 0.9, 1.0]]))
     legs = np.array([[1.35, 0.8, 0.05], [1.35, 0.55, 0.25]])  # in the side's sheet, low
@@ -138,9 +140,11 @@ def test_a_body_reaching_a_table_side_from_above_keeps_the_side_sheet_down_to_th
     assert points_in_hexahedra(legs, boxes).all()
     assert points_in_hexahedra(feet, boxes).all()
     np.testing.assert_allclose(boxes, _reference(torso, ctx), rtol=0, atol=1e-12)
-    # the same body farther out, crossing the side sheet's top face (x = 1.4): the old rule
     crossing = box_vertices(np.array([[1.32, 0.7, 0.6]]), np.array([[1.6, 0.9, 1.0]]))
-    assert not points_in_hexahedra(legs[:1], sheets_under(crossing, ctx)).any()
+    boxes = sheets_under(crossing, ctx)
+    assert points_in_hexahedra(legs, boxes).all()
+    assert not points_in_hexahedra(feet, boxes).any()
+    np.testing.assert_allclose(boxes, _reference(crossing, ctx), rtol=0, atol=1e-12)
     # a piece wholly inside the side's sheet, below its edge (noise), keeps nothing
     inside = box_vertices(np.array([[1.32, 0.7, 0.3]]), np.array([[1.38, 0.9, 0.5]]))
     assert len(sheets_under(inside, ctx)) == 0

@@ -47,13 +47,15 @@ this (:func:`sheets_under`) after the kept pieces near the robot are carved fine
 (:mod:`polyhull.engine.refine`), so that a coarse piece that only seems to cross the top
 does not bring a sheet box with it.
 
-A vertical face's sheet (a table's side) is also kept by a piece that reaches into it from
-above the face's upper edge, where that edge is lower than ``STANDING_HEIGHT``: a person
-standing at a table, whose legs are closer to its side than the sheet is thick (unseen:
-the far cameras read the side, the near ones see the table top instead) and whose body
-rises above the table. That box hangs down to the face's bottom, and the floor's sheet is
-kept under it within the margin (the feet). At a wall or a tall rack only noise reaches
-in from above, and a person standing there is seen where they cross the sheet's top face.
+On a vertical face (a table's or the rack's side, a wall), the box hangs down to the
+face's bottom: a body that reaches the sheet can continue down to the floor inside it,
+legs closer to the side than the sheet is thick (unseen: the cameras that see the side
+read it there, the others see the table top or nothing). A vertical face's sheet is also
+kept by a piece that reaches into it from above the face's upper edge, where that edge is
+lower than ``STANDING_HEIGHT``: a person at a table, seen only above it; under those
+boxes the floor's sheet is kept in turn (the feet). At a wall or a tall rack only noise
+reaches in from above; a person standing there is seen where they cross the sheet's top
+face, and their legs, if seen, keep the floor's sheet themselves.
 """
 
 from __future__ import annotations
@@ -662,16 +664,19 @@ def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     if len(pairs) == 0:
         return np.zeros((0, 8, 3))
     arr = _sheet_arrays(tuple(ctx.sheets))
-    # pairs kept by reaching in from above a vertical face's upper edge (not crossing its
-    # top face): their boxes hang down to the face's bottom, and the floor's sheet is
-    # kept under those in turn
-    hang = (arr.down[pairs[:, 1]] >= 0) & (bounds[:, 5] < arr.height[pairs[:, 1]])
-    if not hang.any():
+    # on a vertical face, the body over the pieces' footprint can reach down to the floor
+    # inside the sheet (legs closer to a wall or a table's side than its sheet is thick):
+    # the boxes hang down to the face's bottom. Where the piece reaches in from above the
+    # face's edge (a person at a table, seen only above it), the floor's sheet is kept
+    # under those boxes in turn (the feet)
+    vertical = arr.down[pairs[:, 1]] >= 0
+    if not vertical.any():
         return _boxes_of_pairs(pairs, bounds, arr, ctx)
-    hanging = _boxes_of_pairs(pairs[hang], bounds[hang], arr, ctx, down=True)
-    parts = [_boxes_of_pairs(pairs[~hang], bounds[~hang], arr, ctx), hanging]
-    if len(hanging):
-        p2, b2 = _crossing_pairs(hanging, ctx)
+    hanging = _boxes_of_pairs(pairs[vertical], bounds[vertical], arr, ctx, down=True)
+    parts = [_boxes_of_pairs(pairs[~vertical], bounds[~vertical], arr, ctx), hanging]
+    above = vertical & (bounds[:, 5] < arr.height[pairs[:, 1]])
+    if above.any():
+        p2, b2 = _crossing_pairs(_boxes_of_pairs(pairs[above], bounds[above], arr, ctx, down=True), ctx)
         flat = arr.down[p2[:, 1]] < 0
         parts.append(_boxes_of_pairs(p2[flat], b2[flat], arr, ctx))
     return np.concatenate(parts)
