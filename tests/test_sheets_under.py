@@ -11,6 +11,7 @@ from polyhull.cellfile import load_cell
 from polyhull.distance import points_in_hexahedra
 from polyhull.engine.dynamic_rules import (
     SHEET_STEP,
+    STANDING_HEIGHT,
     DynamicContext,
     _crossing_pairs,
     _sheet_runs,
@@ -39,13 +40,19 @@ def _reference(vertices: np.ndarray, ctx: DynamicContext) -> np.ndarray:
     if len(pairs) == 0:
         return np.zeros((0, 8, 3))
     down = np.array([ctx.sheets[int(k)].down for k in pairs[:, 1]])
-    height = np.array([ctx.sheets[int(k)].height for k in pairs[:, 1]])
     vertical = down >= 0
     if not vertical.any():
         return _reference_boxes(pairs, bounds, ctx, False)
     parts = [_reference_boxes(pairs[~vertical], bounds[~vertical], ctx, False)]
     parts.append(_reference_boxes(pairs[vertical], bounds[vertical], ctx, True))
-    above = vertical & (bounds[:, 5] < height)
+    # pieces reaching a vertical face from above its (low) upper edge, not crossing its top
+    above = np.zeros(len(pairs), dtype=bool)
+    for i, (k, b) in enumerate(zip(pairs[:, 1], bounds, strict=True)):
+        sh = ctx.sheets[int(k)]
+        if sh.down >= 0:
+            (x0, y0), (x1, y1) = sh.local_box()
+            top = (x1, y1)[sh.down]
+            above[i] = b[3 + sh.down] >= top and top <= STANDING_HEIGHT and b[5] < sh.height
     if above.any():
         p2, b2 = _crossing_pairs(_reference_boxes(pairs[above], bounds[above], ctx, True), ctx)
         flat = np.array([ctx.sheets[int(k)].down < 0 for k in p2[:, 1]], dtype=bool)
@@ -145,6 +152,12 @@ def test_a_body_at_a_table_side_keeps_the_side_sheet_down_to_the_floor() -> None
     assert points_in_hexahedra(legs, boxes).all()
     assert not points_in_hexahedra(feet, boxes).any()
     np.testing.assert_allclose(boxes, _reference(crossing, ctx), rtol=0, atol=1e-12)
-    # a piece wholly inside the side's sheet, below its edge (noise), keeps nothing
+    # a body wholly inside the side's sheet (closer to the side than the sheet is thick)
+    # keeps it down to the floor too, but not the floor's sheet
     inside = box_vertices(np.array([[1.32, 0.7, 0.3]]), np.array([[1.38, 0.9, 0.5]]))
-    assert len(sheets_under(inside, ctx)) == 0
+    boxes = sheets_under(inside, ctx)
+    assert points_in_hexahedra(legs[:1], boxes).all() and not points_in_hexahedra(feet, boxes).any()
+    np.testing.assert_allclose(boxes, _reference(inside, ctx), rtol=0, atol=1e-12)
+    # on the floor, a piece inside the sheet (flatter than it) keeps nothing
+    flat = box_vertices(np.array([[-1.0, -1.0, 0.02]]), np.array([[-0.8, -0.8, 0.1]]))
+    assert len(sheets_under(flat, ctx)) == 0

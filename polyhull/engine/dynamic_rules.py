@@ -47,15 +47,14 @@ this (:func:`sheets_under`) after the kept pieces near the robot are carved fine
 (:mod:`polyhull.engine.refine`), so that a coarse piece that only seems to cross the top
 does not bring a sheet box with it.
 
-On a vertical face (a table's or the rack's side, a wall), the box hangs down to the
-face's bottom: a body that reaches the sheet can continue down to the floor inside it,
-legs closer to the side than the sheet is thick (unseen: the cameras that see the side
-read it there, the others see the table top or nothing). A vertical face's sheet is also
-kept by a piece that reaches into it from above the face's upper edge, where that edge is
-lower than ``STANDING_HEIGHT``: a person at a table, seen only above it; under those
-boxes the floor's sheet is kept in turn (the feet). At a wall or a tall rack only noise
-reaches in from above; a person standing there is seen where they cross the sheet's top
-face, and their legs, if seen, keep the floor's sheet themselves.
+A vertical face's sheet (a table's or the rack's side, a wall) is kept by any kept piece
+that reaches into it, and its box hangs down to the face's bottom: a person stands closer
+to a wall or a table's side than its sheet is thick, and their legs there are unseen (the
+cameras that see the side read it, the others see the table top or nothing). Under the
+boxes of a piece that reaches a face from above its upper edge, where that edge is lower
+than ``STANDING_HEIGHT`` (a person at a table, seen only above it), the floor's sheet is
+kept in turn (the feet). Elsewhere the feet are those of legs that are seen and cross the
+floor's sheet, or lie in the hanging box.
 """
 
 from __future__ import annotations
@@ -403,8 +402,7 @@ def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
 
 STANDING_HEIGHT = 2.0
 """[m] A standing person rises above a vertical face's upper edge (its noise sheet's) only
-where that edge is lower than this: at a table, not at a wall or a tall rack (where only
-noise reaches in from above)."""
+where that edge is lower than this: at a table, not at a wall or a tall rack."""
 
 
 def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray, ArrayF64]:
@@ -419,15 +417,10 @@ def _crossing_pairs(vertices: ArrayF64, ctx: DynamicContext) -> tuple[np.ndarray
     f = arr.face[s]
     h = arr.height[s]
     # what stands on the surface (legs) crosses the top face; its feet, inside the
-    # sheet, lie within the margin of that crossing. A vertical face's sheet is also
-    # kept by what reaches into it from above the face's upper edge: a person standing
-    # at a table, whose legs are in the table side's sheet (thinner than it, unseen) and
-    # whose body rises above the table
-    down = arr.down[s]
-    top = np.where(down == 0, f[:, 2], f[:, 3])  # a vertical face's upper edge (world z)
-    reach = np.where(down == 0, b[:, 3], b[:, 4])
-    above = (down >= 0) & (reach >= top) & (top <= STANDING_HEIGHT)
-    near = (b[:, 2] <= h + eps) & ((b[:, 5] >= h) | above)
+    # sheet, lie within the margin of that crossing (nobody lies flatter than the sheet).
+    # A vertical face's sheet is kept by whatever reaches into it in front of the face: a
+    # person stands closer to a wall or a table's side than its sheet is thick
+    near = (b[:, 2] <= h + eps) & ((b[:, 5] >= h) | ((arr.down[s] >= 0) & (b[:, 5] > 0.0)))
     near &= (b[:, 3] >= f[:, 0]) & (b[:, 0] <= f[:, 2]) & (b[:, 4] >= f[:, 1]) & (b[:, 1] <= f[:, 3])
     return idx[near], b[near]
 
@@ -674,12 +667,24 @@ def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
         return _boxes_of_pairs(pairs, bounds, arr, ctx)
     hanging = _boxes_of_pairs(pairs[vertical], bounds[vertical], arr, ctx, down=True)
     parts = [_boxes_of_pairs(pairs[~vertical], bounds[~vertical], arr, ctx), hanging]
-    above = vertical & (bounds[:, 5] < arr.height[pairs[:, 1]])
+    above = _from_above(pairs, bounds, arr)
     if above.any():
         p2, b2 = _crossing_pairs(_boxes_of_pairs(pairs[above], bounds[above], arr, ctx, down=True), ctx)
         flat = arr.down[p2[:, 1]] < 0
         parts.append(_boxes_of_pairs(p2[flat], b2[flat], arr, ctx))
     return np.concatenate(parts)
+
+
+def _from_above(pairs: np.ndarray, bounds: ArrayF64, arr: _SheetArrays) -> np.ndarray:
+    """(P,) the crossing pairs on a vertical face whose piece reaches into the sheet from
+    above the face's upper edge, where that edge is lower than ``STANDING_HEIGHT`` (a
+    person at a table, seen above it), without crossing the sheet's top face."""
+    s = pairs[:, 1]
+    down = arr.down[s]
+    f = arr.face[s]
+    top = np.where(down == 0, f[:, 2], f[:, 3])  # the face's upper edge (world z)
+    reach = np.where(down == 0, bounds[:, 3], bounds[:, 4])
+    return (down >= 0) & (reach >= top) & (top <= STANDING_HEIGHT) & (bounds[:, 5] < arr.height[s])
 
 
 def _boxes_of_pairs(
