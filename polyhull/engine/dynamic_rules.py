@@ -640,11 +640,11 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
 
 def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
-    every piece that crosses a sheet's top face (or reaches a vertical sheet), the sheet
-    over the piece's footprint on the face, grown by ``floor_shell_margin`` and clipped to
-    the face; on a vertical face, the footprint reaches down to the face's bottom, and the
-    floor's sheet (or a top's) is kept under those boxes in turn (the feet of whoever
-    stands in the vertical sheet).
+    every piece that crosses a sheet's top face (or reaches into a vertical sheet), the
+    sheet over the piece's footprint on the face, grown by ``floor_shell_margin`` and
+    clipped to the face; on a vertical face, the footprint reaches down to the face's
+    bottom, and for a piece that reaches it from above its (low) upper edge, the floor's
+    sheet (or a top's) is kept under those boxes in turn (the feet of a person at a table).
 
     Per sheet, the union of the footprints on a grid of ``SHEET_PITCH`` cells (a
     superset), as one box per run of cells along x, the run broken where the height map
