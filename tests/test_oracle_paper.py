@@ -23,6 +23,7 @@ from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
 from polyhull.cellfile import default_cell_path, load_cell
+from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -34,14 +35,6 @@ def paper() -> tuple[Monitor, Simulator]:
     cell = load_cell(default_cell_path())
     sim = Simulator(cell)
     return Monitor(cell, references=sim.reference()), sim
-
-
-def _in_solid(cell, points: np.ndarray) -> np.ndarray:  # noqa: ANN001
-    out = np.zeros(len(points), dtype=bool)
-    for o in cell.solid_obstacles:
-        b0, b1 = o.mesh.bounds
-        out |= np.all((points >= b0) & (points <= b1), axis=1)
-    return out
 
 
 @settings(
@@ -67,7 +60,7 @@ def test_random_scenes_have_no_misses_and_keep_the_person(
     assert robot is not None
     # the person stands on the floor, not in an obstacle nor on the robot's base
     feet = np.array([[x, y, 0.3], [x, y, 1.0]])
-    assume(not _in_solid(cell, feet).any() and np.hypot(x - 3.0, y - 3.0) > 0.45)
+    assume(not _solid(cell, feet).any() and np.hypot(x - 3.0, y - 3.0) > 0.45)
     q = robot.lower + np.asarray(q01) * (robot.upper - robot.lower)
     person = make_person(pose=pose, position=(x, y), yaw=yaw)  # type: ignore[arg-type]
     # flying pixels are real readings between a person and the background: the exact free
@@ -86,10 +79,10 @@ def test_random_scenes_have_no_misses_and_keep_the_person(
     occupied = exactly_possibly_occupied(monitor, frames, points)
     assert occupied.sum() > 100  # the oracle tests something
     in_r2 = monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
-    misses = occupied & ~in_r2 & ~monitor.in_robot_shadow(points) & ~_in_solid(cell, points)
+    misses = occupied & ~in_r2 & ~monitor.in_robot_shadow(points) & ~_solid(cell, points)
     assert not misses.any(), f"{misses.sum()} exactly occupied points outside R2: {points[misses][:5]}"
     body = sample_points_inside(person, 200, seed=seed)
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | monitor.in_robot_shadow(body) | _in_solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+    ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} person points outside R3: {body[~ok][:5]}"

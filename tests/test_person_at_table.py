@@ -19,6 +19,7 @@ import pytest
 from conftest import exactly_possibly_occupied, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
+from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -64,10 +65,7 @@ def test_legs_against_a_side_stay_in_r3(
     assert not v.faults, v.faults
     body = sample_points_inside(person, 400, seed=1)
     body = body[cell.zone.contains(body)]
-    solid = np.zeros(len(body), dtype=bool)
-    for o in cell.solid_obstacles:
-        b0, b1 = o.mesh.bounds
-        solid |= np.all((body >= b0) & (body <= b1), axis=1)
+    solid = _solid(cell, body)
     # the scene has what the test is about: body points low in a side's sheet
     sheets = [s for s in monitor.static.sheets if s.axis != 2]
     local = [(body @ s.to_local()[:, :3].T + s.to_local()[:, 3]) for s in sheets]
