@@ -10,6 +10,10 @@ import gc
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from .cachedir import use_numba_cache
+
+use_numba_cache()  # before any module of the package imports numba
+
 if TYPE_CHECKING:
     from .camera import Camera as Camera
     from .camera import Intrinsics as Intrinsics

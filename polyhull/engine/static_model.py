@@ -50,6 +50,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..background import TaughtCamera
+from ..cachedir import cache_directory
 from ..camera import Camera
 from ..cell import Cell, Obstacle
 from ..errors import FrameError
@@ -887,15 +888,6 @@ CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
 _CACHE_FORMAT = b"polyhull-static-model-4"
-
-
-def cache_directory() -> Path | None:
-    """Where static models are cached (None when disabled; see :meth:`StaticModel.load_or_build`)."""
-    env = os.environ.get("POLYHULL_CACHE_DIR")
-    if env is not None:
-        return None if env.strip().lower() in ("", "0", "off", "none", "false") else Path(env)
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".cache") / "polyhull"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:

@@ -1,0 +1,45 @@
+"""The compiled kernels are cached under the user's cache directory, never next to the
+package's sources: numba files written into site-packages outlive ``pip uninstall`` and
+their folder then shadows a later editable install (``import polyhull`` finds an empty
+namespace package and the command line fails)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_KERNEL = """
+import numpy as np
+import polyhull.engine.pixels as px
+lo, hi = px.window_range(np.arange(12.0).reshape(3, 4), np.array([[0, 1, 0, 1]]))
+assert lo[0] == 0.0 and hi[0] == 5.0
+import numba.core.config as c
+print(c.CACHE_DIR)
+"""
+
+
+def _run(env: dict[str, str]) -> str:
+    out = subprocess.run([sys.executable, "-c", _KERNEL], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+    return out.stdout.strip().splitlines()[-1]
+
+
+def _env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "POLYHULL_CACHE_DIR", "XDG_CACHE_HOME")}
+    env.update(extra)
+    return env
+
+
+def test_kernels_are_cached_under_the_user_cache(tmp_path: Path) -> None:
+    assert _run(_env(XDG_CACHE_HOME=str(tmp_path))) == str(tmp_path / "polyhull" / "numba")
+    assert any((tmp_path / "polyhull" / "numba").rglob("*.nbi"))  # the kernel's index is there
+
+
+def test_polyhull_cache_dir_and_numba_cache_dir_are_honoured(tmp_path: Path) -> None:
+    assert _run(_env(POLYHULL_CACHE_DIR=str(tmp_path / "p"))) == str(tmp_path / "p" / "numba")
+    # the static model cache off: the kernels still go under the user's cache
+    assert _run(_env(POLYHULL_CACHE_DIR="off", XDG_CACHE_HOME=str(tmp_path / "x"))) == str(tmp_path / "x" / "polyhull" / "numba")
+    assert _run(_env(NUMBA_CACHE_DIR=str(tmp_path / "n"))) == str(tmp_path / "n")
