@@ -415,11 +415,15 @@ class RasterBuffers:
         self.zbuf, self.zback = scratch
         self._images = _empty_images(H, W)
         self._rect: tuple[int, int, int, int] | None = None
+        # an empty reset: the kernel is compiled (or loaded) here, when the buffers are
+        # made, not in the first cycle that reuses them
+        _reset(*self._images, 0, -1, 0, -1)
 
     def take(self) -> tuple[np.ndarray, ArrayF32, ArrayF32, ArrayF32]:
         """The images, reset to "not covered"."""
         if self._rect is not None:
-            _reset(*self._images, *self._rect)
+            u0, u1, v0, v1 = self._rect
+            _reset(*self._images, int(u0), int(u1), int(v0), int(v1))
             self._rect = None
         return self._images
 
