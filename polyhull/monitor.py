@@ -759,15 +759,19 @@ class Monitor:
         # the robot shadow's memory near the previous dynamic components
         dt = None if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
         memory = PieceSet.empty()
+        mem_lo = mem_hi = None  # the previous cycle's seeds grown by a person's reach since
         if (
             cell.reconstruction.shadow_memory
             and rasters
             and self._seed_lo is not None
+            and self._seed_hi is not None
             and len(self._seed_lo)
             and dt is not None
         ):
+            reach = safety.human_speed * dt + 1e-3
+            mem_lo, mem_hi = self._seed_lo - reach, self._seed_hi + reach
             memory = self._timed(
-                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, safety.human_speed * dt + 1e-3)
+                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, mem_lo, mem_hi)
             )
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)
@@ -812,7 +816,12 @@ class Monitor:
         def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
             p = replace(params, size_min=size_min, alpha=alpha)
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
-            return carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
+            out = carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
+            if mem and mem_lo is not None and mem_hi is not None and len(out):
+                # the memory is what meets the grown seed boxes: a coarse memory piece that met
+                # one at a corner is, carved finely, only its children that meet one
+                out = out.select(any_overlap(*vertex_bounds(out.vertices), mem_lo, mem_hi, self._pool))
+            return out
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
             if self._distance_model is None or static_now is None:
@@ -983,9 +992,11 @@ class Monitor:
         free_imgs: list[np.ndarray | None],
         free_stack: ImageStack,
         run_carve: Callable[..., tuple[PieceSet, bool]],
-        reach: float,
+        lo: ArrayF64,
+        hi: ArrayF64,
     ) -> PieceSet:
-        """Pieces of ``C n M`` within ``reach`` [m] of the previous cycle's seeds.
+        """Pieces of ``C n M`` that meet the boxes ``[lo, hi]``: the previous cycle's seeds
+        grown by a person's reach since.
 
         The seeds are what the previous cycle saw as a target (see
         :class:`polyhull.engine.dynamic_rules.DynamicResult`), and of it only the part
@@ -1005,9 +1016,6 @@ class Monitor:
         boxes that meet it: :func:`polyhull.engine.pixels.memory_segments`), then carved
         like any piece, and kept where they meet the boxes.
         """
-        assert self._seed_lo is not None and self._seed_hi is not None
-        lo = self._seed_lo - reach
-        hi = self._seed_hi + reach
         # Reused every cycle: "no segment" everywhere except the robot's rectangle of each
         # camera (written below, and reset the next cycle).
         if self._mem_stacks is None:
