@@ -178,7 +178,13 @@ def timeline_figure(records: Sequence[Mapping[str, Any]], *, title: str | None =
     finite_ms = [x for x in cycle_ms if not math.isnan(x) and x > 0]
     ax_c.plot(stamps, cycle_ms, color="C4", marker=marker, ms=3, label="cycle time")
     if finite_ms:
+        from matplotlib.ticker import FuncFormatter, LogLocator
+
         ax_c.set_yscale("log")
+        # plain numbers (20, 50, 100), not powers of ten with minor-tick labels
+        ax_c.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax_c.yaxis.set_minor_formatter(FuncFormatter(lambda y, _: ""))
+        ax_c.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y:g}"))
     ax_c.set_ylabel("cycle [ms]")
     ax_c.set_xlabel("time since the first cycle [s]" if t_first != 0.0 else "time [s]")
     for ax in (ax_d, ax_s, ax_c):
