@@ -759,7 +759,7 @@ class Monitor:
         # the robot shadow's memory near the previous dynamic components
         dt = None if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
         memory = PieceSet.empty()
-        mem_lo = mem_hi = None  # the previous cycle's seeds grown by a person's reach since
+        mem_seeds = None  # the previous cycle's seeds, and a person's reach since
         if (
             cell.reconstruction.shadow_memory
             and rasters
@@ -768,10 +768,10 @@ class Monitor:
             and len(self._seed_lo)
             and dt is not None
         ):
-            reach = safety.human_speed * dt + 1e-3
-            mem_lo, mem_hi = self._seed_lo - reach, self._seed_hi + reach
+            s_lo, s_hi, reach = self._seed_lo, self._seed_hi, safety.human_speed * dt + 1e-3
+            mem_seeds = (s_lo, s_hi, reach)
             memory = self._timed(
-                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, mem_lo, mem_hi)
+                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, s_lo, s_hi, reach)
             )
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)
@@ -817,10 +817,11 @@ class Monitor:
             p = replace(params, size_min=size_min, alpha=alpha)
             frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
             out = carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
-            if mem and mem_lo is not None and mem_hi is not None and len(out):
-                # the memory is what meets the grown seed boxes: a coarse memory piece that met
-                # one at a corner is, carved finely, only its children that meet one
-                out = out.select(any_overlap(*vertex_bounds(out.vertices), mem_lo, mem_hi, self._pool))
+            if mem and mem_seeds is not None and len(out):
+                # the memory is what comes within reach of the seeds: a coarse memory piece
+                # that did at a corner is, carved finely, only its children that do
+                lo, hi, r = mem_seeds
+                out = out.select(any_overlap(*vertex_bounds(out.vertices), lo, hi, self._pool, reach=r))
             return out
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
@@ -992,11 +993,12 @@ class Monitor:
         free_imgs: list[np.ndarray | None],
         free_stack: ImageStack,
         run_carve: Callable[..., tuple[PieceSet, bool]],
-        lo: ArrayF64,
-        hi: ArrayF64,
+        seed_lo: ArrayF64,
+        seed_hi: ArrayF64,
+        reach: float,
     ) -> PieceSet:
-        """Pieces of ``C n M`` that meet the boxes ``[lo, hi]``: the previous cycle's seeds
-        grown by a person's reach since.
+        """Pieces of ``C n M`` within ``reach`` [m] (Euclidean: the boxes grown by a ball) of
+        the previous cycle's seeds, boxes ``[seed_lo, seed_hi]``.
 
         The seeds are what the previous cycle saw as a target (see
         :class:`polyhull.engine.dynamic_rules.DynamicResult`), and of it only the part
@@ -1014,8 +1016,9 @@ class Monitor:
         camera); only the covered pixels of the tiles that the projections of the seeds'
         boxes grown by ``reach`` meet are built (each tile with the depth range of the
         boxes that meet it: :func:`polyhull.engine.pixels.memory_segments`), then carved
-        like any piece, and kept where they meet the boxes.
+        like any piece, and kept where they come within ``reach`` of a seed.
         """
+        lo, hi = seed_lo - reach, seed_hi + reach  # the segments are built within these
         # Reused every cycle: "no segment" everywhere except the robot's rectangle of each
         # camera (written below, and reset the next cycle).
         if self._mem_stacks is None:
@@ -1066,7 +1069,7 @@ class Monitor:
         pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
         if not len(pieces):
             return pieces
-        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), lo, hi, self._pool))
+        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), seed_lo, seed_hi, self._pool, reach=reach))
 
     def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""

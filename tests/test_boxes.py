@@ -94,6 +94,29 @@ def test_any_overlap_on_two_threads_is_the_same(seed: int, n: int) -> None:
         assert np.array_equal(any_overlap(qlo, qhi, blo, bhi, pool), _meets(qlo, qhi, blo, bhi).any(axis=1))
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 200), m=st.integers(0, 120), reach=st.floats(0.0, 0.6))
+def test_any_overlap_within_reach_is_brute_force(seed: int, n: int, m: int, reach: float) -> None:
+    """With ``reach``: the Euclidean gap between the boxes is at most ``reach`` (a ball,
+    not a cube: boxes diagonal to each other within the cube's reach do not count)."""
+    qlo, qhi = _random_boxes(seed, n, 3.0)
+    blo, bhi = _random_boxes(seed + 1, m, 3.0)
+    gap = np.linalg.norm(np.maximum(np.maximum(blo[None] - qhi[:, None], qlo[:, None] - bhi[None]), 0.0), axis=2)
+    expected = (gap <= reach).any(axis=1) if m else np.zeros(n, dtype=bool)
+    # pairs within a rounding error of the limit may go either way
+    doubt = (np.abs(gap - reach) < 1e-9).any(axis=1) if m else np.zeros(n, dtype=bool)
+    got = any_overlap(qlo, qhi, blo, bhi, reach=reach)
+    assert np.array_equal(got[~doubt], expected[~doubt])
+
+
+def test_any_overlap_reach_is_a_ball() -> None:
+    """Two unit boxes apart by 0.3 m along each axis: 0.52 m apart (not 0.3)."""
+    lo, hi = np.zeros((1, 3)), np.ones((1, 3))
+    assert not any_overlap(lo, hi, lo + 1.3, hi + 1.3, reach=0.5)[0]
+    assert any_overlap(lo, hi, lo + 1.3, hi + 1.3, reach=0.53)[0]
+    assert any_overlap(lo, hi, lo + np.array([1.3, 0.0, 0.0]), hi + np.array([1.3, 0.0, 0.0]), reach=0.31)[0]
+
+
 def _fcl_meets(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(N,) python-fcl: whether each solid box [lo, hi] collides with the triangles."""
     model = fcl.BVHModel()

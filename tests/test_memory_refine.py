@@ -1,11 +1,10 @@
-"""Refinement keeps the shadow memory's part in the grown seed boxes, and drops the rest.
+"""Refinement keeps the shadow memory's part within reach of the seeds, and drops the rest.
 
-The memory (SPEC section 4) is the part of C n M that meets the previous cycle's seeds
-grown by a person's reach. Its pieces are carved coarsely and kept whole when they meet a
-grown seed box, so a piece that meets one at a corner stands for space well beyond it.
-Where such pieces decide the distance, refinement carves them finely and keeps only the
-children that meet a box. The demo's walk (0.3 s cycles) has such pieces at 0.9 s, where
-they brought the region 0.18 m nearer the robot (1.305 m; 1.481 m with the filter).
+The memory (SPEC section 4) is the part of C n M within a person's reach (``v_h dt``,
+Euclidean) of the previous cycle's seeds. Its pieces are carved coarsely and kept whole
+when they come within reach, so a piece that does at a corner stands for space well
+beyond it. Where such pieces decide the distance, refinement carves them finely and keeps
+only the children within reach. The demo's walk (0.3 s cycles) has such pieces at 0.9 s.
 """
 
 from __future__ import annotations
@@ -58,7 +57,7 @@ def memory_cycle() -> dict[str, Any]:
 
     def record_memory(self: Monitor, *args: Any) -> PieceSet:
         out = memory(self, *args)
-        seen["memory"], seen["lo"], seen["hi"] = out, args[-2], args[-1]
+        seen["memory"], seen["lo"], seen["hi"], seen["reach"] = out, *args[-3:]
         return out
 
     def record_judge(*args: Any, **kwargs: Any) -> Any:
@@ -85,7 +84,7 @@ def memory_cycle() -> dict[str, Any]:
     return seen
 
 
-def test_refined_memory_keeps_its_part_in_the_grown_seed_boxes(memory_cycle: dict[str, Any]) -> None:
+def test_refined_memory_keeps_its_part_within_reach_of_the_seeds(memory_cycle: dict[str, Any]) -> None:
     verdict, monitor = memory_cycle["verdict"], memory_cycle["monitor"]
     assert not verdict.faults
     mem: PieceSet = memory_cycle["memory"]
@@ -93,10 +92,10 @@ def test_refined_memory_keeps_its_part_in_the_grown_seed_boxes(memory_cycle: dic
     kept = mem.select(keep)
     assert len(kept) > 10
     pts = _points_in_pieces(kept, monitor._stack, SAMPLES, np.random.default_rng(0))
-    lo, hi = memory_cycle["lo"], memory_cycle["hi"]
-    in_box = np.zeros(len(pts), dtype=bool)
+    lo, hi, reach = memory_cycle["lo"], memory_cycle["hi"], memory_cycle["reach"]
+    in_reach = np.zeros(len(pts), dtype=bool)  # within reach of a seed box (Euclidean)
     for a, b in zip(lo, hi, strict=True):
-        in_box |= np.all((pts >= a) & (pts <= b), axis=1)
+        in_reach |= np.linalg.norm(np.maximum(np.maximum(a - pts, pts - b), 0.0), axis=1) <= reach
     # what the memory stands for: points no camera sees free (k = 1), in their own camera's
     # memory segment (the carve splits the pieces down to these, finer near the robot)
     images = monitor.last_images
@@ -118,18 +117,18 @@ def test_refined_memory_keeps_its_part_in_the_grown_seed_boxes(memory_cycle: dic
         seg = np.zeros(len(pts), dtype=bool)
         seg[ok] = (z[ok] >= mem_free.image(i)[pv, pu]) & (z[ok] <= mem_end.image(i)[pv, pu])
         held &= ~mine | seg
-    assert (in_box & held).sum() > 1000
+    assert (in_reach & held).sum() > 1000
     in_region = points_in_hexahedra(pts, verdict._geometry.kept)
     in_region[~in_region] = manifold_contains(monitor.static.region, pts[~in_region])
     # the shell rule may cut refined pieces; the cut is reported (and is no loss of this step)
     for r in verdict.removed:
         if r.rule == "too_thin":
             in_region[~in_region] = manifold_contains(r.mesh, pts[~in_region])
-    lost = pts[in_box & held & ~in_region]
-    assert len(lost) == 0, f"{len(lost)} memory points inside the grown seed boxes left R3, e.g. {lost[:3].round(3).tolist()}"
-    # and of the memory beyond every box, refinement keeps little: measured 213 of 1,170
-    # points in R3 (through children that also meet a box, or other pieces), 418 without
-    # the filter (children kept wherever their parent was)
-    outside = ~in_box
+    lost = pts[in_reach & held & ~in_region]
+    assert len(lost) == 0, f"{len(lost)} memory points within reach of the seeds left R3, e.g. {lost[:3].round(3).tolist()}"
+    # and of the memory beyond reach, refinement keeps what it does not carve finely (away
+    # from the robot): measured 427 of 1,308 points in R3, 838 without the filter (children
+    # kept wherever their parent was)
+    outside = ~in_reach
     assert outside.sum() > 500
-    assert (outside & in_region).sum() < 0.27 * outside.sum(), ((outside & in_region).sum(), outside.sum())
+    assert (outside & in_region).sum() < 0.5 * outside.sum(), ((outside & in_region).sum(), outside.sum())

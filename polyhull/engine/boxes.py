@@ -162,44 +162,57 @@ def group_bounds(labels: np.ndarray, lo: ArrayF64, hi: ArrayF64, K: int) -> tupl
 
 
 @nb.njit(cache=True, nogil=True)
-def _any(qlo, qhi, blo, bhi, order, keys, extent, out):  # pragma: no cover - compiled
+def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, out):  # pragma: no cover - compiled
     """Boxes sorted by their x minimum (``keys``): a query's candidates start within
-    ``extent`` before it. The boxes starting inside the query's x range (which meet it
-    along x) are tested first, then those before it, nearest first: hits come early."""
+    ``extent`` before it. The boxes starting inside the query's x range grown by ``reach``
+    (which meet it along x) are tested first, then those before it, nearest first: hits
+    come early. A candidate meets the query when it overlaps the query's box grown by
+    ``reach`` on every side (the sweep's test) and their Euclidean gap is at most ``reach``."""
     n = order.shape[0]
+    r2 = reach * reach
     for i in range(qlo.shape[0]):
-        mid = np.searchsorted(keys, qlo[i, 0], side="left")
+        l0, l1, l2 = qlo[i, 0] - reach, qlo[i, 1] - reach, qlo[i, 2] - reach
+        h0, h1, h2 = qhi[i, 0] + reach, qhi[i, 1] + reach, qhi[i, 2] + reach
+        mid = np.searchsorted(keys, l0, side="left")
         hit = False
         for a in range(mid, n):
-            if keys[a] > qhi[i, 0]:
+            if keys[a] > h0:
                 break
             j = order[a]
-            if blo[j, 1] <= qhi[i, 1] and bhi[j, 1] >= qlo[i, 1] and blo[j, 2] <= qhi[i, 2] and bhi[j, 2] >= qlo[i, 2]:
-                hit = True
-                break
+            if blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
+                if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j) <= r2:
+                    hit = True
+                    break
         if not hit:
-            lim = qlo[i, 0] - extent
+            lim = l0 - extent
             for a in range(mid - 1, -1, -1):
                 if keys[a] < lim:
                     break
                 j = order[a]
-                if (
-                    bhi[j, 0] >= qlo[i, 0]
-                    and blo[j, 1] <= qhi[i, 1]
-                    and bhi[j, 1] >= qlo[i, 1]
-                    and blo[j, 2] <= qhi[i, 2]
-                    and bhi[j, 2] >= qlo[i, 2]
-                ):
-                    hit = True
-                    break
+                if bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
+                    if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j) <= r2:
+                        hit = True
+                        break
         if hit:
             out[i] = True
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _gap2(qlo, qhi, blo, bhi, i, j):  # pragma: no cover - compiled
+    """Squared Euclidean gap between query box i and box j (0 when they overlap)."""
+    g2 = 0.0
+    for a in range(3):
+        g = max(blo[j, a] - qhi[i, a], qlo[i, a] - bhi[j, a], 0.0)
+        g2 += g * g
+    return g2
+
+
 def any_overlap(
-    qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64, pool: Executor | None = None
+    qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64, pool: Executor | None = None, reach: float = 0.0
 ) -> np.ndarray:
-    """(N,) whether each query box [qlo, qhi] (N, 3) meets any box [blo, bhi] (M, 3).
+    """(N,) whether each query box [qlo, qhi] (N, 3) meets any box [blo, bhi] (M, 3), or
+    with ``reach`` [m] comes within that Euclidean distance of one (the box grown by a
+    ball, not by a cube: along a diagonal a cube reaches sqrt(3) times as far).
     With a ``pool`` and many queries, the queries are split over this thread and one of the
     pool's."""
     out = np.zeros(qlo.shape[0], dtype=bool)
@@ -225,7 +238,7 @@ def any_overlap(
         o = np.zeros(len(range(*sl.indices(len(qlo)))), dtype=bool)
         ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
         for order, keys, extent in passes:
-            _any(ql, qh, blo, bhi, order, keys, extent, o)
+            _any(ql, qh, blo, bhi, order, keys, extent, float(reach), o)
         return o
 
     if pool is None or len(qlo) < ANY_PARALLEL_MIN:
