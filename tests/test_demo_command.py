@@ -49,3 +49,33 @@ def test_behaviour_line_names_the_speed_phases() -> None:
     records = [{"stamp": 0.3 * k, "speed_scale": s} for k, s in enumerate(scales)]
     assert behaviour(records) == "full speed 0.0-0.3 s, slower at 0.6 s, stop 0.9-1.2 s, slower at 1.5 s, full speed at 1.8 s"
     assert behaviour([]) == "no cycle"
+
+
+def test_demo_scene_draws_a_cycle_every_scene_dt(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The monitor runs every --dt; the HTML scene gets a cycle every --scene-dt (each
+    drawn cycle builds its region as a manifold)."""
+    import polyhull_viewer
+
+    drawn: list[float] = []
+
+    class Recorder:
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            pass
+
+        def add_cycle(self, t: float, *args: object) -> None:
+            drawn.append(t)
+
+        def write_html(self, path: Path) -> Path:
+            path.write_text("<html></html>")
+            return path
+
+    monkeypatch.setattr(polyhull_viewer, "DemoRecorder", Recorder)
+    html = tmp_path / "demo.html"
+    argv = ["demo", "--cell", str(SMALL_CELL), "--cycles", "5", "--dt", "0.1", "--scene-dt", "0.2"]
+    assert cli.main([*argv, "--no-plot", "--html", str(html)]) == 0
+    assert drawn == pytest.approx([0.0, 0.2, 0.4])
+    assert f"wrote {html}" in capsys.readouterr().out
+    assert cli.main(["demo", "--cycles", "2", "--scene-dt", "-1", "--no-plot"]) == 2
+    assert "--scene-dt" in capsys.readouterr().err
