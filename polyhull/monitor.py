@@ -9,7 +9,8 @@ Only this module knows the order of the stages (:mod:`polyhull.engine`):
 3. ``robot_raster``: the padded robot in every camera's image;
 4. ``pixels``: every pixel classified; the engine's free depth image of every camera;
 5. ``pieces``: tiles of unexplained pixels, carved by the other cameras (the dynamic part);
-6. ``memory``: the robot shadow's memory near the previous cycle's dynamic components;
+6. ``memory``: the robot shadow's memory near what the previous cycle saw as a target
+   (:mod:`polyhull.engine.memory`);
 7. ``plausibility``: the rules on the dynamic components, the sheets under them;
 8. ``distance``: static BVH and the dynamic pieces near the robot (python-fcl);
 9. ``speed``: ISO/TS 15066 (or the ramp).
@@ -46,7 +47,6 @@ from .distance import (
     StaticDistance,
     winding_numbers,
 )
-from .engine.boxes import any_overlap
 from .engine.dynamic_rules import (
     DynamicContext,
     DynamicResult,
@@ -56,6 +56,7 @@ from .engine.dynamic_rules import (
     judge_dynamic,
     sheets_under,
 )
+from .engine.memory import MEMORY_PIECE, ShadowMemory, seen_parts, within_reach
 from .engine.pieces import (
     CameraStack,
     CarveParams,
@@ -70,9 +71,7 @@ from .engine.pieces import (
 from .engine.pixels import (
     PixelBuffers,
     StaticClasses,
-    box_rects,
     classify_frame,
-    memory_segments,
     prepare_static,
     small_gap_pixels,
     tile_segments,
@@ -353,8 +352,10 @@ class Monitor:
         self._margin = self._padding * math.sqrt(3.0)
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
-        self._mem_stacks: tuple[ImageStack, ImageStack] | None = None
-        self._mem_rects: list[tuple[slice, slice] | None] = []
+        self._shadow = ShadowMemory(
+            cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
+            self._tile_tol,
+        )
         # a cycle's images (held by its verdict and last_images) and its rasters (held by
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
         # one pair per camera, are left reset after each use
@@ -771,7 +772,11 @@ class Monitor:
             s_lo, s_hi, reach = self._seed_lo, self._seed_hi, safety.human_speed * dt + 1e-3
             mem_seeds = (s_lo, s_hi, reach)
             memory = self._timed(
-                timings, "memory", lambda: self._memory(rasters, free_imgs, free_stack, run_carve, s_lo, s_hi, reach)
+                timings,
+                "memory",
+                lambda: self._shadow.pieces(
+                    rasters, free_imgs, lambda init, f, e: run_carve(init, f, e, True)[0], s_lo, s_hi, reach, self._pool
+                ),
             )
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)
@@ -815,13 +820,13 @@ class Monitor:
 
         def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
             p = replace(params, size_min=size_min, alpha=alpha)
-            frees, ends = self._mem_stacks if mem and self._mem_stacks is not None else (free_stack, end_stack)
+            mem_stacks = self._shadow.stacks
+            frees, ends = mem_stacks if mem and mem_stacks is not None else (free_stack, end_stack)
             out = carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
-            if mem and mem_seeds is not None and len(out):
+            if mem and mem_seeds is not None:
                 # the memory is what comes within reach of the seeds: a coarse memory piece
                 # that did at a corner is, carved finely, only its children that do
-                lo, hi, r = mem_seeds
-                out = out.select(any_overlap(*vertex_bounds(out.vertices), lo, hi, self._pool, reach=r))
+                out = within_reach(out, *mem_seeds, self._pool)
             return out
 
         def measure(vertices: ArrayF64, best: DistanceResult | None) -> DistanceResult:
@@ -859,7 +864,7 @@ class Monitor:
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
         self._prev_lo, self._prev_hi = vertex_bounds(observed)
-        seeds = _seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
+        seeds = seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
         self._seed_lo, self._seed_hi = vertex_bounds(seeds)
         self._prev_stamp = t
         self._prev_distance = float(dist.distance)
@@ -987,90 +992,6 @@ class Monitor:
             out[near] = winding_numbers(points[near], v, t) > 0.5
         return out
 
-    def _memory(
-        self,
-        rasters: Mapping[str, RobotRaster],
-        free_imgs: list[np.ndarray | None],
-        free_stack: ImageStack,
-        run_carve: Callable[..., tuple[PieceSet, bool]],
-        seed_lo: ArrayF64,
-        seed_hi: ArrayF64,
-        reach: float,
-    ) -> PieceSet:
-        """Pieces of ``C n M`` within ``reach`` [m] (Euclidean: the boxes grown by a ball) of
-        the previous cycle's seeds, boxes ``[seed_lo, seed_hi]``.
-
-        The seeds are what the previous cycle saw as a target (see
-        :class:`polyhull.engine.dynamic_rules.DynamicResult`), and of it only the part
-        within ``SEED_DEPTH`` behind the surface its pixels measured: not the whole previous
-        region. Grown from R3_static, from sensor noise spared next to the robot, from the
-        unseen shadow behind a person or from the memory itself, the memory would fill the
-        robot's shadow for good and hold the robot at a standstill. A person wholly inside
-        M is followed for one cycle; with cameras around the cell M is the robot's own
-        narrow shadow, and a person's visible remainder seeds the memory again every cycle.
-        A person who was never seen (hidden in a static or a person's shadow) and steps
-        from there into M is not followed.
-
-        Behind the padded robot (its back depth) in every robot-covered pixel, the segment
-        to the static free depth holds C n M (what the robot hides, not freed by this
-        camera); only the covered pixels of the tiles that the projections of the seeds'
-        boxes grown by ``reach`` meet are built (each tile with the depth range of the
-        boxes that meet it: :func:`polyhull.engine.pixels.memory_segments`), then carved
-        like any piece, and kept where they come within ``reach`` of a seed.
-        """
-        lo, hi = seed_lo - reach, seed_hi + reach  # the segments are built within these
-        # Reused every cycle: "no segment" everywhere except the robot's rectangle of each
-        # camera (written below, and reset the next cycle).
-        if self._mem_stacks is None:
-            self._mem_stacks = (ImageStack(self._stack, fill=np.inf), ImageStack(self._stack, fill=-np.inf))
-            self._mem_rects = [None] * len(self.cell.cameras)
-        mem_free, mem_end = self._mem_stacks
-        tile = self.cell.reconstruction.tile
-
-        def camera(i: int) -> np.ndarray | None:
-            # one camera's memory segments as tiles (thread-safe: camera i's images only)
-            cam, s = self.cell.cameras[i], self.static.cameras[i]
-            raster = rasters.get(cam.name)
-            free = free_imgs[i]
-            prev = self._mem_rects[i]
-            if prev is not None:
-                mem_free.image(i)[prev] = np.inf  # no segment
-                mem_end.image(i)[prev] = -np.inf
-                self._mem_rects[i] = None
-            if raster is None or free is None or raster.rect is None:
-                return None
-            u0, u1, v0, v1 = raster.rect
-            # the grown seed boxes behind the robot's nearest back depth, as pixel
-            # rectangles within the covered pixels' rectangle
-            k = cam.intrinsics
-            rects, zr = box_rects(
-                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, raster.back_min), raster.rect
-            )
-            # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
-            H, W = cam.shape
-            tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile
-            tw = (slice(tv0, min((v1 // tile + 1) * tile, H)), slice(tu0, min((u1 // tile + 1) * tile, W)))
-            self._mem_rects[i] = tw
-            f, e = memory_segments(
-                raster.covered[tw], raster.back[tw], free[tw], s.free_static[tw],
-                rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw], tile,
-            )
-            tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)
-            if not len(tiles):
-                return None
-            tiles[:, 0:2] += tu0
-            tiles[:, 2:4] += tv0
-            return np.column_stack([np.full(len(tiles), float(i)), tiles])
-
-        parts = [p for p in share(self._pool, camera, range(len(self.cell.cameras))) if p is not None]
-        if not parts:
-            return PieceSet.empty()
-        # carved by the cameras' free depth; split along the memory segments
-        pieces, _ = run_carve(np.concatenate(parts), mem_free, mem_end, True)
-        if not len(pieces):
-            return pieces
-        return pieces.select(any_overlap(*vertex_bounds(pieces.vertices), seed_lo, seed_hi, self._pool, reach=reach))
-
     def _full_pieces(self, free_stack: ImageStack, run_carve: Callable[..., tuple[PieceSet, bool]]) -> ArrayF64:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""
         parts = []
@@ -1097,37 +1018,6 @@ class Monitor:
         ]
         union = m3.Manifold.batch_boolean([f for f in self.static.free if not f.is_empty()], m3.OpType.Add) ^ self._zone
         return robot_occlusion(self.cell.cameras, self.static.free, union, padded_world, bands)
-
-
-MEMORY_PIECE = 0.2
-"""Smallest split [m] of the shadow memory's pieces (and of the hull C's, built only when
-read). Memory pieces start behind the padded robot, so their distance is about the
-padding whatever their size; finer pieces only cost time."""
-
-
-SEED_DEPTH = 0.6
-"""Depth [m] of a person's body behind the surface their pixels measure (the shadow
-memory's seeds are the seen parts of the kept pieces, not the shadow behind them)."""
-
-
-def _seen_parts(boxes: ArrayF64, free_imgs: list[np.ndarray | None], stack: CameraStack) -> ArrayF64:
-    """(S, 8, 3) the parts of pieces (boxes (N, 7)) within ``SEED_DEPTH`` behind the
-    surface their pixels measured: the depth range ``[max(z0, f_min), min(z1, f_max +
-    SEED_DEPTH)]`` with ``f`` the camera's free depth over the piece's pixels. Pieces of a
-    camera without a frame, or entirely deeper, give nothing."""
-    out = []
-    cams = boxes[:, 0].astype(np.int64)
-    for c in np.unique(cams):
-        free = free_imgs[int(c)]
-        if free is None:
-            continue
-        b = boxes[cams == c].copy()
-        f_lo, f_hi = window_range(free, b[:, 1:5].astype(np.int64))
-        b[:, 5] = np.maximum(b[:, 5], f_lo)
-        b[:, 6] = np.minimum(b[:, 6], f_hi + SEED_DEPTH)
-        out.append(b[b[:, 5] < b[:, 6]])
-    kept = np.concatenate(out) if out else np.zeros((0, 7))
-    return piece_vertices(kept, stack)
 
 
 def _pieces_removed(rule: str, pieces: PieceSet, stack: CameraStack) -> RemovedComponent:

@@ -19,8 +19,9 @@ from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid, dynamic_volume_outside_static
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
+from polyhull.engine.memory import SEED_DEPTH, seen_parts
 from polyhull.engine.pieces import CameraStack
-from polyhull.monitor import SEED_DEPTH, Monitor, _seen_parts
+from polyhull.monitor import Monitor
 from polyhull.simulator import SensorEffects, Simulator
 
 CYCLES = 12
@@ -112,7 +113,7 @@ def test_memory_seeds_are_the_seen_depth() -> None:
             [0, 10, 11, 10, 11, 3.0, 4.0],  # entirely deeper than 2.0 + SEED_DEPTH
         ]
     )
-    seeds = _seen_parts(boxes, [free] + [None] * (len(cell.cameras) - 1), stack)
+    seeds = seen_parts(boxes, [free] + [None] * (len(cell.cameras) - 1), stack)
     assert seeds.shape == (1, 8, 3)
     cam = cell.cameras[0]
     _, z = cam.project(seeds[0])

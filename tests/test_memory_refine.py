@@ -19,6 +19,7 @@ import polyhull.monitor as monitor_module
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.demo import WALK_SHARE, person_path, robot_motion
 from polyhull.distance import points_in_hexahedra
+from polyhull.engine.memory import ShadowMemory
 from polyhull.engine.pieces import CameraStack, PieceSet
 from polyhull.monitor import Monitor
 from polyhull.robot import Robot
@@ -53,11 +54,11 @@ def memory_cycle() -> dict[str, Any]:
     sim = Simulator(cell, robot=robot)
     monitor = Monitor(cell, references=sim.reference(), robot=robot)
     seen: dict[str, Any] = {}
-    memory, judge = Monitor._memory, monitor_module.judge_dynamic
+    memory, judge = ShadowMemory.pieces, monitor_module.judge_dynamic
 
-    def record_memory(self: Monitor, *args: Any) -> PieceSet:
+    def record_memory(self: ShadowMemory, *args: Any) -> PieceSet:
         out = memory(self, *args)
-        seen["memory"], seen["lo"], seen["hi"], seen["reach"] = out, *args[-3:]
+        seen["memory"], seen["lo"], seen["hi"], seen["reach"] = out, *args[3:6]
         return out
 
     def record_judge(*args: Any, **kwargs: Any) -> Any:
@@ -66,7 +67,7 @@ def memory_cycle() -> dict[str, Any]:
         return out
 
     mp = pytest.MonkeyPatch()
-    mp.setattr(Monitor, "_memory", record_memory)
+    mp.setattr(ShadowMemory, "pieces", record_memory)
     mp.setattr(monitor_module, "judge_dynamic", record_judge)
     try:
         q0 = np.asarray(cell.robot.q)
@@ -102,7 +103,8 @@ def test_refined_memory_keeps_its_part_within_reach_of_the_seeds(memory_cycle: d
     assert images is not None
     cams = monitor.cell.cameras
     own = np.repeat(kept.boxes[:, 0].astype(int), SAMPLES)
-    mem_free, mem_end = monitor._mem_stacks
+    assert monitor._shadow.stacks is not None
+    mem_free, mem_end = monitor._shadow.stacks
     held = np.ones(len(pts), dtype=bool)
     for i, cam in enumerate(cams):
         uv, z = cam.project(pts)

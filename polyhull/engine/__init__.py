@@ -12,10 +12,14 @@ The stages, in the order :class:`polyhull.monitor.Monitor` (the pipeline) runs t
    unexplained) and the engine's free depth image of each camera.
 4. :mod:`.pieces`: the occluded frustum segments of the unexplained pixels, carved by the
    other cameras' free depth into a union of convex hexahedra, the dynamic part ``Delta``.
-5. :mod:`.dynamic_rules`: the plausibility rules on the dynamic components.
-6. :mod:`polyhull.distance`: the distance from the region to the robot.
+5. :mod:`.memory`: the robot shadow's memory, ``C n M`` within a person's reach of what
+   the previous cycle saw as a target, as more pieces.
+6. :mod:`.dynamic_rules`: the plausibility rules on the dynamic components.
+7. :mod:`.refine` and :mod:`polyhull.distance`: the pieces at the distance frontier carved
+   finely, the sheets under what stands on a surface, the distance to the robot.
 
 The region of a cycle is ``R = R_static U Delta_kept U sheets`` where ``R_static`` is the
-static region after its plausibility rules, ``Delta_kept`` the dynamic pieces that pass
-theirs and ``sheets`` the static noise sheet under every kept dynamic component.
+static region after its plausibility rules, ``Delta_kept`` the dynamic pieces (with the
+memory's) that pass theirs and ``sheets`` the static noise sheet under every kept dynamic
+component.
 """
