@@ -757,7 +757,7 @@ class Monitor:
         if overflow:
             warnings.append(f"pieces: the budget of {self._carve.max_pieces} pieces was reached; undecided pieces kept whole")
 
-        # the robot shadow's memory near the previous dynamic components
+        # the robot shadow's memory near what the previous cycle saw as a target
         dt = None if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
         memory = PieceSet.empty()
         mem_seeds = None  # the previous cycle's seeds, and a person's reach since
