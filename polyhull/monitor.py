@@ -852,6 +852,7 @@ class Monitor:
             lambda: refine_kept(
                 allp.select(result.keep), flags, result.inside[result.keep], rules,
                 np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure, self._pool,
+                front if math.isfinite(last) else None,
             ),
         )
         dist, sheet_boxes = refined.distance, refined.sheets

@@ -124,8 +124,9 @@ def test_memory_seeds_are_the_seen_depth() -> None:
 # patch beyond the small_gaps limit (~6.2 m deep) leaves residue near the floor, 0.17 to 0.19 m
 # from a static blind region and under 1 L: too_small, once it is not taken for touching
 # R3_static. The 5 cm touch grid alone took it for touching, and it came 0.07 to 0.22 m
-# nearer the robot than the static region (0.03 m and more since the first carve after a
-# reset splits at the static region's distance).
+# nearer the robot than the static region (0.18 m at cycle 73 today; at cycle 98 the
+# refinement, which now carves from the last frontier less its slack without measuring
+# first, carves the kept residue finely enough that it no longer comes nearer).
 RESIDUE_CYCLES = (73, 98)
 
 
@@ -149,7 +150,7 @@ def test_dropout_residue_apart_from_the_static_region_is_too_small(paper: tuple[
         monitor._dyn_ctx = replace(exact, static_near=None)
         monitor.reset()
         grid = monitor.step(frames, q, stamp=k * DT)
-        assert grid.min_distance < static - 0.01, (grid.min_distance, static)
+        assert grid.min_distance <= v.min_distance + 1e-9  # it keeps more, never less
         assert sum(r.rule == "too_small" for r in v.removed) > sum(r.rule == "too_small" for r in grid.removed)
     finally:
         monitor._dyn_ctx = exact

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -12,6 +13,7 @@ from polyhull.distance import DistanceResult
 from polyhull.engine.dynamic_rules import box_vertices
 from polyhull.engine.pieces import PieceSet
 from polyhull.engine.refine import (
+    BAND,
     OWN,
     SETTLED,
     RegionRules,
@@ -164,3 +166,39 @@ def test_same_rows_against_a_set() -> None:
         np.testing.assert_array_equal(_same_rows(a, b), np.array([tuple(r) in rows for r in a], dtype=bool).reshape(-1))
 
     check()
+
+
+@pytest.mark.parametrize("hint", [0.3, 0.1, 5.0])
+def test_a_hinted_frontier_skips_the_first_measurement_and_changes_nothing_else(hint: float) -> None:
+    """With the last cycle's frontier as a hint, the unrefined region is not measured
+    first (one python-fcl pass less a cycle), unless a piece may lie more than ``BAND``
+    nearer than the hint (the region came closer than expected): then it is, as without
+    a hint. Either way the same pieces are carved, cut and kept, and the distance is the
+    returned region's."""
+    kept = _boxes(
+        [
+            (1, 1.0, 0.0, 0.20, 1.1, 0.1, 0.35),
+            (2, 1.2, 0.0, 0.00, 1.3, 0.1, 0.20),
+            (3, -3.0, 0.0, 0.0, -2.9, 0.1, 1.8),
+        ]
+    )
+    children = {1: [(4, 1.0, 0.0, 0.20, 1.1, 0.1, 0.28)]}
+
+    def recarve(boxes: np.ndarray, memory: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+        return _boxes([r for b in boxes for r in children.get(int(b[0]), [tuple(b)])])
+
+    spheres = np.array([[1.8, 0.05, 0.2, 0.2]])
+    flags = np.array([OWN, OWN, OWN], dtype=np.int8)
+    inside = _rules(0.3).in_shells(kept.vertices)
+    runs = []
+    for front_hint in (None, hint):
+        measure, calls = _measure(robot_x=1.6)
+        out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, recarve, measure, front_hint=front_hint)
+        region = np.concatenate([out.pieces.vertices, out.sheets])
+        assert out.distance.distance == measure(region, None).distance
+        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, len(calls) - 1))
+    (ids, cut, d, n), (h_ids, h_cut, h_d, h_n) = runs
+    assert (h_ids, h_cut, h_d) == (ids, cut, d)
+    hinted = float(distance_lower_bounds(kept.vertices, spheres).min()) >= hint - BAND
+    assert hinted == (hint < 1.0)
+    assert h_n == (n - 1 if hinted else n)
