@@ -389,6 +389,9 @@ class Monitor:
             self._padded: PaddedPieces | None = PaddedPieces.build(robot.link_convex_pieces(), self._padding)
             self._shell_planes = _ShellPlanes(_shell_planes(self._padded, cell.plausibility.shell_thickness))
             self._piece_spheres = [_sphere(v) for v in self._padded.vertices]
+            # the padded pieces of the links the distance is measured to (not of a base fixed
+            # to the world: the solids stand for it)
+            self._measured = np.array([n in moving for n in self._padded.links], dtype=bool)
             self._static_distance: StaticDistance | None = StaticDistance(
                 self._distance_model, ChunkedMesh.of_manifold(self.static.region), self._static_contains
             )
@@ -398,6 +401,7 @@ class Monitor:
             self._padded = None
             self._shell_planes = _ShellPlanes([])
             self._piece_spheres = []
+            self._measured = np.zeros(0, dtype=bool)
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -852,7 +856,7 @@ class Monitor:
             lambda: refine_kept(
                 allp.select(result.keep), flags, result.inside[result.keep], rules,
                 np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure, self._pool,
-                front if math.isfinite(last) else None,
+                front if math.isfinite(last) else None, spheres[self._measured] if len(spheres) else None,
             ),
         )
         dist, sheet_boxes = refined.distance, refined.sheets

@@ -203,3 +203,38 @@ def test_a_hinted_frontier_skips_the_first_measurement_and_changes_nothing_else(
     hinted = float(distance_lower_bounds(kept.vertices, spheres).min()) >= hint - BAND
     assert hinted == (hint < 1.0)
     assert h_n == (n - 1 if hinted else n)
+
+
+def test_the_hint_counts_only_the_links_the_distance_is_measured_to() -> None:
+    """A ball of a link fixed to the world (the robot's base, which the distance is not
+    measured to) near a piece does not refuse the hint: with ``hint_spheres`` (the measured
+    links' balls) the first measurement is skipped, and the pieces carved, cut and kept
+    and the distance are those of the run without a hint."""
+    kept = _boxes(
+        [
+            (1, 1.0, 0.0, 0.20, 1.1, 0.1, 0.35),
+            (2, 1.2, 0.0, 0.00, 1.3, 0.1, 0.20),
+            (3, -3.0, 0.0, 0.0, -2.9, 0.1, 1.8),
+        ]
+    )
+
+    def recarve(boxes: np.ndarray, memory: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+        return _boxes([tuple(b) for b in boxes])
+
+    link = np.array([[1.8, 0.05, 0.2, 0.2]])
+    base = np.array([[-2.95, 0.05, 0.5, 0.3]])  # over piece 3: its lower bound is 0
+    spheres = np.concatenate([link, base])
+    flags = np.array([OWN, OWN, OWN], dtype=np.int8)
+    inside = _rules(0.3).in_shells(kept.vertices)
+    hint = 0.5
+    assert float(distance_lower_bounds(kept.vertices, spheres).min()) < hint - BAND  # refused by the base
+    assert float(distance_lower_bounds(kept.vertices, link).min()) >= hint - BAND
+    runs = []
+    for kwargs in ({}, {"front_hint": hint}, {"front_hint": hint, "hint_spheres": link}):
+        measure, calls = _measure(robot_x=1.6)
+        out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, recarve, measure, **kwargs)
+        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, len(calls)))
+    (ids, cut, d, n), (r_ids, r_cut, r_d, r_n), (h_ids, h_cut, h_d, h_n) = runs
+    assert (r_ids, r_cut, r_d, r_n) == (ids, cut, d, n)  # the base's ball refuses the hint
+    assert (h_ids, h_cut, h_d) == (ids, cut, d)
+    assert h_n == n - 1

@@ -218,6 +218,7 @@ def refine_kept(
     measure: Callable[[ArrayF64, Any], Any],
     pool: Executor | None = None,
     front_hint: float | None = None,
+    hint_spheres: ArrayF64 | None = None,
 ) -> Refined:
     """Carve again the kept pieces (``kept`` with their ``flags`` and whether each is
     ``inside`` a shell) that can decide the distance to the robot (see the module
@@ -227,7 +228,10 @@ def refine_kept(
     hexahedra, or ``best`` (a result of another part) if that is nearer. ``pool``: the
     shell rule's box tests are shared with one of its threads. ``front_hint`` [m]: the
     frontier to refine from instead of measuring the unrefined region first, used when no
-    piece's lower bound lies more than ``BAND`` below it (see the module docstring)."""
+    piece's lower bound lies more than ``BAND`` below it (see the module docstring), the
+    bound counted to ``hint_spheres`` (S', 4) when given: the balls of the links the
+    distance is measured to (``spheres`` may hold more, e.g. a base fixed to the world,
+    whose balls steer the carving but cannot decide the distance)."""
     margin = rules.margin
     reach = REACH_EXTRA + margin  # farthest behind the frontier that is refined
     cross = rules.crossing(kept.vertices)
@@ -246,7 +250,8 @@ def refine_kept(
         front_hint is not None
         and len(kept)
         and len(spheres)
-        and float(lower.min()) >= front_hint - BAND
+        and float(distance_lower_bounds(kept.vertices, spheres if hint_spheres is None else hint_spheres).min())
+        >= front_hint - BAND
     ):
         # the hinted frontier (the last cycle's, less its slack): no piece can be much
         # nearer, so the first measurement is skipped
