@@ -82,6 +82,12 @@ STATIC_CHUNK = 0.5
 """Edge [m] of the grid cells that split a large static mesh into chunks
 (:class:`ChunkedMesh`)."""
 
+STATIC_TOLERANCE = 1e-4
+"""Tolerance [m] to which the static region is simplified for its distance
+(:meth:`ChunkedMesh.of_manifold`). The static region is built at full pixel resolution:
+163,000 triangles on the paper cell, most of them coplanar; at 0.1 mm it keeps 7,600, and
+a link's distance to it costs 2.6 times less. The distance is reported that much nearer."""
+
 
 class ChunkedMesh:
     """A large mesh (the static region) as spatial chunks, each its own FCL BVH.
@@ -96,7 +102,10 @@ class ChunkedMesh:
     tested separately (a point inside every link, by winding number).
     """
 
-    def __init__(self, vertices: ArrayF64, triangles: np.ndarray, chunk: float = STATIC_CHUNK) -> None:
+    def __init__(self, vertices: ArrayF64, triangles: np.ndarray, chunk: float = STATIC_CHUNK, tolerance: float = 0.0) -> None:
+        self.tolerance = float(tolerance)
+        """How far [m] the mesh's surface may lie from the region's it stands for: a
+        distance measured to it, less this, is never above the region's."""
         vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         triangles = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
         if len(triangles):
@@ -123,12 +132,16 @@ class ChunkedMesh:
         """(K, 3) the chunks' box maxima [m]."""
 
     @classmethod
-    def of_manifold(cls, region: m3.Manifold, chunk: float = STATIC_CHUNK) -> ChunkedMesh | None:
-        """The chunks of a manifold's triangles (world frame), None if it is empty."""
+    def of_manifold(cls, region: m3.Manifold, chunk: float = STATIC_CHUNK, tolerance: float = 0.0) -> ChunkedMesh | None:
+        """The chunks of a manifold's triangles (world frame), None if it is empty. With a
+        ``tolerance`` [m], of the manifold simplified to it first (manifold3d's
+        ``simplify``: a subset of the vertices, every surface moved by less than it)."""
         if region.is_empty():
             return None
+        if tolerance > 0.0:
+            region = region.simplify(tolerance)
         mesh = region.to_mesh64()
-        return cls(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), chunk)
+        return cls(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts), chunk, tolerance)
 
     def __len__(self) -> int:
         return len(self.objects)
@@ -460,6 +473,19 @@ def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cove
     return lower, near, upper
 
 
+def _nearer_by(d: float, points: ArrayF64 | None, tolerance: float) -> tuple[float, ArrayF64 | None]:
+    """A distance ``d`` and its closest points (region, link) made ``tolerance`` [m]
+    nearer: the region's point moved that far towards the link's (contact when
+    ``d <= tolerance``)."""
+    if tolerance <= 0.0 or d <= 0.0:
+        return d, points
+    if d <= tolerance or points is None:
+        return (0.0, None) if d <= tolerance else (d - tolerance, None)
+    region, link = points
+    moved = region + (link - region) * (tolerance / d)
+    return d - tolerance, np.array([moved, link], dtype=np.float64)
+
+
 def _displacement(T0: ArrayF64, T1: ArrayF64, center: ArrayF64, radius: float) -> float:
     """An upper bound [m] of how far any point of a ball (link frame ``center``,
     ``radius``) moves from pose ``T0`` to pose ``T1``: the centre's displacement plus the
@@ -476,6 +502,8 @@ class StaticDistance:
     (:meth:`cycle`) gives every link that lower bound, and only links whose bound is below
     the distance sought are measured with FCL: the result is FCL's exact distance
     whenever the static region is the nearest part, and otherwise no static query runs.
+    A mesh simplified to a tolerance (:attr:`ChunkedMesh.tolerance`) gives distances less
+    that tolerance, their region point that much nearer the link.
     """
 
     def __init__(
@@ -550,6 +578,7 @@ class StaticCycle:
                     break
                 hint = owner._nearest.get(name, -1)
                 d, pts, owner._nearest[name] = owner._model.query_chunks(owner._static, name, self._T[name], hint)
+                d, pts = _nearer_by(d, pts, owner._static.tolerance)
                 self.queries += 1
                 self._done[name] = (d, pts)
                 owner._last[name] = (np.array(self._T[name], dtype=np.float64), d)

@@ -41,6 +41,7 @@ from scipy.spatial import ConvexHull
 
 from .cell import Cell
 from .distance import (
+    STATIC_TOLERANCE,
     ChunkedMesh,
     DistanceResult,
     RobotDistanceModel,
@@ -393,7 +394,7 @@ class Monitor:
             # to the world: the solids stand for it)
             self._measured = np.array([n in moving for n in self._padded.links], dtype=bool)
             self._static_distance: StaticDistance | None = StaticDistance(
-                self._distance_model, ChunkedMesh.of_manifold(self.static.region), self._static_contains
+                self._distance_model, ChunkedMesh.of_manifold(self.static.region, tolerance=STATIC_TOLERANCE), self._static_contains
             )
         else:
             self._static_distance = None

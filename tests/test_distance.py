@@ -233,3 +233,42 @@ def test_pruned_piece_distance_equals_all_pieces(robot: Robot, model: RobotDista
             assert got.distance == pytest.approx(want, abs=1e-9)
 
     check()
+
+
+def test_static_distance_on_a_simplified_mesh_is_never_farther(robot: Robot, model: RobotDistanceModel) -> None:
+    """The static region's mesh simplified to a tolerance (far fewer triangles: a full
+    pixel resolution surface is mostly coplanar) gives, less that tolerance, a distance
+    never above FCL's to the whole region, and at most twice the tolerance below it; the
+    region point it names is the distance away from the link point."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.distance import ChunkedMesh, StaticDistance, manifold_to_fcl
+
+    tol = 2e-3
+    # finely triangulated flat faces (as the static region's) and a curved part
+    region = _box((1.2, 0.3, 0.9), (0.5, 0.7, 1.2)).refine(12) + m3.Manifold.sphere(0.3, 192).translate((2.6, 1.5, 1.0))
+    obj = manifold_to_fcl(region)
+    chunks = ChunkedMesh.of_manifold(region, chunk=0.2, tolerance=tol)
+    assert chunks is not None and chunks.tolerance == tol
+    assert region.simplify(tol).num_tri() < region.num_tri() / 2
+    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+
+    @settings(max_examples=15)
+    @given(st.integers(0, 2**31 - 1))
+    def check(seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        q = rng.uniform(lo, hi)
+        cache = StaticDistance(model, chunks, None)
+        for _ in range(6):
+            q = np.clip(q + rng.uniform(-0.2, 0.2, size=q.shape), lo, hi)
+            T = robot.link_transforms(q)
+            full = model.distance(T, static=obj).distance
+            got = cache.cycle(T).nearer()
+            assert got.distance <= full + 1e-9
+            assert got.distance >= full - 2.0 * tol - 1e-9 or full <= tol
+            if got.points is not None:
+                assert np.linalg.norm(got.points[1] - got.points[0]) == pytest.approx(got.distance, abs=1e-9)
+
+    check()
