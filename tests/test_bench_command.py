@@ -61,6 +61,9 @@ def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ig
     assert math.isfinite(loss["median"]) and loss["max"] >= loss["median"]
     empty = bench_json["empty_cell"]
     assert empty["cycles"] == 2
+    # timed back to back: the warm-up cycle left out of the two
+    assert empty["cycle_ms"]["cycles"] == 1
+    assert 0.0 < empty["cycle_ms"]["median"] <= empty["cycle_ms"]["p99"] <= empty["cycle_ms"]["max"]
     assert 0 <= empty["kept_pieces"]["min"] <= empty["kept_pieces"]["max"]
     assert 0 <= empty["cycles_with_kept_pieces"] <= 2 and 0 <= empty["cycles_distance_off_static"] <= 2
     assert 0.0 <= empty["speed_scale"]["min"] <= 1.0
