@@ -222,6 +222,17 @@ def any_overlap(
     bhi = np.ascontiguousarray(bhi, dtype=np.float64)
     qlo = np.ascontiguousarray(qlo, dtype=np.float64)
     qhi = np.ascontiguousarray(qhi, dtype=np.float64)
+    if len(blo) >= BOUNDS_FILTER_MIN:
+        # only the boxes that meet the queries' bounds (grown by the reach) can meet a
+        # query: the queries often lie in one part of the boxes (the pieces in the floor's
+        # sheet, under a person's pieces), and a query that meets none scans every box
+        # starting in its window
+        glo, ghi = qlo.min(axis=0) - reach, qhi.max(axis=0) + reach
+        near = np.all((blo <= ghi) & (bhi >= glo), axis=1)
+        if not near.all():
+            blo, bhi = np.ascontiguousarray(blo[near]), np.ascontiguousarray(bhi[near])
+            if len(blo) == 0:
+                return out
     # A query scans the boxes starting within the longest box's extent before it: the few
     # long boxes are scanned in a pass of their own, so they do not widen every scan.
     ext = bhi[:, 0] - blo[:, 0]
@@ -251,6 +262,9 @@ def any_overlap(
 
 ANY_PARALLEL_MIN = 512
 """Fewest queries :func:`any_overlap` splits over two threads."""
+
+BOUNDS_FILTER_MIN = 32
+"""Fewest boxes :func:`any_overlap` first filters by the queries' bounds."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
