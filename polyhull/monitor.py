@@ -65,6 +65,7 @@ from .engine.pieces import (
     PieceSet,
     PyramidStack,
     carve,
+    merge_adjacent,
     piece_vertices,
     piece_volumes,
     vertex_bounds,
@@ -113,6 +114,8 @@ class _CycleGeometry:
     zone: m3.Manifold
     pieces_parts: tuple[ArrayF64, ...]  # (N_i, 8, 3) all dynamic pieces before the rules (with memory)
     kept_pieces: ArrayF64  # (K, 8, 3) kept dynamic pieces
+    kept_boxes: ArrayF64  # (K, 7) the same in their cameras' image space
+    stack: CameraStack  # the cameras, for the pieces' vertices
     sheet_boxes: ArrayF64  # (S, 8, 3) the sheet boxes under them
     robot_body: Callable[[], m3.Manifold]
     occlusion: Callable[[], m3.Manifold]
@@ -140,7 +143,8 @@ class _CycleGeometry:
         if name == "region_dynamic":
             # The sheet boxes are supersets of the static sheet they stand for: as a
             # manifold, only their part in R2_static (the removed sheet) is shown.
-            pieces = _hexahedra_manifold(self.kept_pieces) ^ self.zone
+            # (the same union from a third as many pieces: siblings merged back)
+            pieces = _hexahedra_manifold(piece_vertices(merge_adjacent(self.kept_boxes), self.stack)) ^ self.zone
             sheets = _hexahedra_manifold(self.sheet_boxes) ^ s.region_r2
             return check_manifold(pieces + sheets, "dynamic region")
         if name == "region":
@@ -901,6 +905,8 @@ class Monitor:
             zone=self._zone,
             pieces_parts=(allp.vertices, gap_verts),
             kept_pieces=kept_pieces.vertices,
+            kept_boxes=kept_pieces.boxes,
+            stack=self._stack,
             sheet_boxes=sheet_boxes,
             robot_body=lambda: _robot_body(padded_world),
             occlusion=lambda: self._occlusion(padded_world),
