@@ -250,7 +250,7 @@ def refine_kept(
         front_hint is not None
         and len(kept)
         and len(spheres)
-        and float(distance_lower_bounds(kept.vertices, spheres if hint_spheres is None else hint_spheres).min())
+        and float((lower if hint_spheres is None else distance_lower_bounds(kept.vertices, hint_spheres)).min())
         >= front_hint - BAND
     ):
         # the hinted frontier (the last cycle's, less its slack): no piece can be much
