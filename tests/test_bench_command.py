@@ -40,6 +40,8 @@ def test_bench_json_timings(bench_json: dict) -> None:  # type: ignore[type-arg]
         assert stage in stages and stages[stage] >= 0
         assert bench_json["stages_cycles"][stage] == 2
     assert "total" not in stages
+    first = bench_json["first_cycles_ms"]
+    assert len(first) == 2 and all(ms > 0 for ms in first)
     w = bench_json["workload"]
     assert w["cameras"] == 4 and w["resolution"] == [320, 240] and w["cycles"] == 2 and w["warmup"] == 1
 

@@ -4,7 +4,8 @@ Five parts, on one monitor (the static model is built once):
 
 1. the reference workload: the cell, the robot moving, one walking person, default sensor
    effects; frames rendered before timing, ``warmup`` untimed cycles, then ``cycles`` timed
-   ones: the cycle's median and p99 [ms] and every stage's median [ms];
+   ones: the cycle's median and p99 [ms] and every stage's median [ms]; and the new
+   monitor's first two cycles [ms] (what a controller sees after starting it);
 2. the person: over the walk, the true distance from the person's mesh to the robot's
    moving links against the reported distance (reported must never exceed true), and both
    against the distance of the exact depth hull's part that holds the person
@@ -665,6 +666,7 @@ def run_bench(
             inputs.append((sim.render(q, targets=[person], seed=seed + k, stamp=t), q, t, person))
             bar.update()
     stages: dict[str, list[float]] = {}
+    first: list[float] = []  # the new monitor's first two cycles (the warm-up's effect)
     verdicts = []
     comparison = None  # OctoMap on the last ``peers`` timed cycles, alternating with the monitor
     if peers > 0:
@@ -682,6 +684,8 @@ def run_bench(
                 comparison.add(frames, q, person, v)
             # as a controller does, no verdict's regions are kept but the last one's (a
             # kept verdict keeps its cycle's images, and the monitor allocates new ones)
+            if k < 2:
+                first.append(v.timings["total"])
             if k >= warmup:
                 for stage, ms in v.timings.items():
                     stages.setdefault(stage, []).append(ms)
@@ -808,6 +812,7 @@ def run_bench(
             "empty_cell_sensor_effects": "all (default and uint16 millimetres)",
         },
         "cycle_ms": {"median": float(np.median(total)), "p99": float(np.percentile(total, 99)), "max": float(total.max())},
+        "first_cycles_ms": first,
         "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
         "stages_cycles": {s: len(v) for s, v in stages.items()},
         "person": {
@@ -891,6 +896,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"{stage:<16}{ms:12.1f}{note}")
     print(f"{'cycle median':<16}{c['median']:12.1f}")
     print(f"{'cycle p99':<16}{c['p99']:12.1f}")
+    print("a new monitor's first cycles: " + ", ".join(f"{ms:.1f}" for ms in result["first_cycles_ms"]) + " ms")
     p = result["person"]
     g = p["true_minus_reported_m"]
     print(f"person: {p['cycles']} cycles, true - reported distance median {_fmt(g['median'])} m, "

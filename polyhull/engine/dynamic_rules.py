@@ -296,6 +296,7 @@ class _SheetArrays(NamedTuple):
     height: ArrayF64  # (S,)
     W: ArrayF64  # (S, 3, 4) local -> world
     down: np.ndarray  # (S,) the local axis along world z of a vertical face, -1 otherwise
+    no_down: np.ndarray  # (S,) -1: no face hangs down
 
 
 @functools.cache
@@ -314,9 +315,11 @@ def _sheet_arrays(sheets: tuple[Sheet, ...]) -> _SheetArrays:
     height = np.array([sh.height for sh in sheets], dtype=np.float64)
     W = np.array([_to_world(m) for m in M]).reshape(S, 3, 4)
     down = np.array([sh.down for sh in sheets], dtype=np.int64)
-    for a in (M, wlo, whi, face, height, W, down):
+    no_down = np.full(S, -1, dtype=np.int64)
+    # all read-only: the compiled kernels see one type (a writable array is another)
+    for a in (M, wlo, whi, face, height, W, down, no_down):
         a.setflags(write=False)
-    return _SheetArrays(M, wlo, whi, face, height, W, down)
+    return _SheetArrays(M, wlo, whi, face, height, W, down, no_down)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -696,7 +699,7 @@ def _boxes_of_pairs(
         return np.zeros((0, 8, 3))
     maps = _height_maps(ctx.sheet_heights, len(ctx.sheets))
     order = np.argsort(pairs[:, 1], kind="stable")
-    hang = arr.down if down else np.full(len(arr.down), -1, dtype=np.int64)
+    hang = arr.down if down else arr.no_down
     return _sheet_boxes(
         np.ascontiguousarray(pairs[order, 1]), np.ascontiguousarray(bounds[order]), arr.face, arr.W, arr.height,
         hang, maps[0], maps[1], maps[2], float(ctx.params.floor_shell_margin), SHEET_PITCH, SHEET_STEP,

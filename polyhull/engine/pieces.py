@@ -629,8 +629,9 @@ def carve(
         b, o = _carve(part, *args, budget, *tail)
         return b, piece_vertices(b, stack), bool(o)
 
-    # interleaved halves: neighbouring tiles (similar work) go to both threads
-    done = share(pool, half, (initial[0::2], initial[1::2]))
+    # interleaved halves: neighbouring tiles (similar work) go to both threads; contiguous
+    # copies, so that the kernel has one signature (one compiled version to load)
+    done = share(pool, half, (np.ascontiguousarray(initial[0::2]), np.ascontiguousarray(initial[1::2])))
     return (
         PieceSet(np.concatenate([d[0] for d in done]), np.concatenate([d[1] for d in done])),
         any(d[2] for d in done),

@@ -850,9 +850,12 @@ class StaticModel:
 
     def prepare(self) -> None:
         """Build now what the cycles would build on first use (the triangle grid of
-        :meth:`boxes_meet`), so that no cycle pays for it."""
+        :meth:`boxes_meet`, and its compiled kernel loaded by one query), so that no cycle
+        pays for it."""
         _ = self._triangle_grid
         _ = self.touch.coarse
+        corner = np.asarray(self.zone.bounding_box()[:3], dtype=np.float64).reshape(1, 3)
+        self.boxes_meet(corner, corner + 0.01, 0.01, np.zeros(1, dtype=np.int64), 1)
 
     @functools.cached_property
     def _triangle_grid(self) -> TriangleGrid | None:
