@@ -175,13 +175,6 @@ def _run(args: argparse.Namespace) -> int:
     duration = args.cycles * args.dt
     walk_for = WALK_SHARE * duration
     person_at = person_path(np.asarray(cell.zone.min), np.asarray(cell.zone.max), np.asarray(cell.robot.base[:2]), walk_for)
-    # Two cycles with the person at the start first, then reset: the engine's compiled
-    # kernels load or compile (the second cycle takes the paths that need a previous one,
-    # such as the shadow memory) and its buffers are allocated, so the run's cycle times
-    # (which the speed decision counts as latency) are ordinary ones from the first.
-    for k in (-2, -1):
-        monitor.step(sim.render(q0, targets=[person_at(0.0)], seed=args.seed, stamp=k * args.dt), q0, stamp=k * args.dt)  # type: ignore[operator]
-    monitor.reset()
     records: list[dict[str, Any]] = []
     scene_t: float | None = None  # the last cycle drawn in the HTML scene
     print(f"{'t [s]':>6} {'distance [m]':>12} {'true [m]':>8} {'closest link':>13} {'speed':>6} {'cycle [ms]':>10}  faults")
