@@ -317,6 +317,11 @@ class PlausibilityParams:
         floor_shell_height: Height [m] of the floor shell; above the noise band, below
             the thickness of a person lying down.
         floor_shell_margin: Horizontal reach [m] of feet around the legs' cross-section.
+        standing_depth: How far [m] a person standing against a wall or an obstacle's side
+            protrudes from it at the least (an adult's chest, head and feet: 0.18 m and
+            more): the noise sheet in front of a vertical face is judged only this deep;
+            where the static region reaches farther out, it stays (a person may stand in it
+            unseen).
         detection_size: The detection capability [m]: the smallest cross-section of an
             object the small_gaps rule never removes.
         entry_areas: Declared entry areas.
@@ -336,6 +341,7 @@ class PlausibilityParams:
     human_speed_max: float = 2.0
     floor_shell_height: float = 0.25
     floor_shell_margin: float = 0.3
+    standing_depth: float = 0.15
     detection_size: float = 0.07
     entry_areas: tuple[EntryArea, ...] = ()
 
@@ -347,6 +353,7 @@ class PlausibilityParams:
             "human_speed_max",
             "floor_shell_height",
             "floor_shell_margin",
+            "standing_depth",
             "detection_size",
         ):
             value = getattr(self, name)

@@ -318,6 +318,7 @@ floor_shell = false
 keep_at_boundary = false
 floor_shell_height = 0.3
 floor_shell_margin = 0.4
+standing_depth = 0.2
 small_gaps = false
 detection_size = 0.05
 """

@@ -168,7 +168,7 @@ def test_boxes_meet_the_static_region_within_the_distance(paper: tuple[Monitor, 
     rng = np.random.default_rng(7)
     eps = 0.05
     seen = {"near": 0, "far": 0}
-    for _ in range(40):
+    for _ in range(100):
         centre = verts[rng.integers(len(verts))] + rng.uniform(-0.2, 0.2, 3)
         size = rng.uniform(0.02, 0.1, 3)
         lo, hi = centre - size / 2, centre + size / 2

@@ -25,7 +25,8 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
    ``shell_thickness`` of an obstacle, by the exact point-to-box distance, or of a padded
    robot piece, by the hull of its vertices plus a polytope inscribed in the ball of that
    radius: a subset of the true shell) or inside one noise sheet (the floor's or an
-   obstacle face's, judged at precompute) is removed, unless a piece of its component
+   obstacle face's, judged at precompute; a vertical face's only ``standing_depth`` deep,
+   since a person standing against it sticks out that far) is removed, unless a piece of its component
    outside every shell lies within ``floor_shell_margin`` of it: a standing person crosses
    the floor's sheet and keeps their feet, a hand reaching into the robot's shell is
    attached to an arm outside it. Pieces touching the boundary of Z are kept with
@@ -388,15 +389,19 @@ def _sheet_pairs(vertices: ArrayF64, sheets: tuple[Sheet, ...], pad: float) -> t
 
 
 def _in_sheets(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
-    """(N,) whether each piece lies inside one sheet's shell (the static noise sheets)."""
+    """(N,) whether each piece lies inside one sheet's shell (the static noise sheets; a
+    vertical face's only ``standing_depth`` deep)."""
     out = np.zeros(vertices.shape[0], dtype=bool)
     idx, b, arr = _sheet_pairs(vertices, ctx.sheets, 0.0)
     if len(idx) == 0:
         return out
     s = idx[:, 1]
     f = arr.face[s]
+    # a vertical face's sheet holds no standing person deeper than standing_depth (one
+    # there sticks out that far at the least): what reaches farther out is not noise
+    h = np.where(arr.down[s] >= 0, np.minimum(arr.height[s], ctx.params.standing_depth), arr.height[s])
     inside = (
-        (b[:, 2] >= -1e-6) & (b[:, 5] <= arr.height[s])
+        (b[:, 2] >= -1e-6) & (b[:, 5] <= h)
         & (b[:, 0] >= f[:, 0]) & (b[:, 3] <= f[:, 2]) & (b[:, 1] >= f[:, 1]) & (b[:, 4] <= f[:, 3])
     )
     out[idx[inside, 0]] = True

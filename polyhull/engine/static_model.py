@@ -22,7 +22,10 @@ Fused (:class:`StaticModel`):
   part of R2_static within ``floor_shell_height`` above such a surface is removed, except
   within ``floor_shell_margin`` (horizontally) of whatever crosses that height (a blind
   region, a shadow), whose bottom it is. Per cycle, a dynamic component keeps the sheet
-  under it (:mod:`polyhull.engine.dynamic_rules`);
+  under it (:mod:`polyhull.engine.dynamic_rules`). In front of a vertical face taller than
+  ``LOW_FACE`` (a rack, a wall) a person may stand wholly below the face's edge, and the
+  sheet measured there can be deeper (0.4 m) than a standing person: it is judged only
+  ``plausibility.standing_depth`` deep, and the static region beyond stays;
 - the plausibility rules over the remaining components (:mod:`polyhull.plausibility`),
   judged once: ``R3_static``;
 - a python-fcl BVH of R3_static (reused every cycle with the identity transform) and a
@@ -266,6 +269,11 @@ class Sheet:
         return _sheet_frame(self)[3]
 
     @property
+    def top(self) -> float:
+        """The face's highest point [m] (world z)."""
+        return float(self.world_box(0.0)[1][2]) if self.axis != 2 else float(self.level)
+
+    @property
     def down(self) -> int:
         """For a vertical face, the local axis (0 for x, 1 for y) that runs along world z
         (upward); -1 for a horizontal one (the floor, an obstacle's top)."""
@@ -376,6 +384,12 @@ def sheet_thickness(sheet: Sheet, cameras: Sequence[StaticCamera], spacing: floa
 SHEET_CAP = 0.4
 """Largest sheet thickness [m] judged in front of an obstacle's face."""
 
+LOW_FACE = 1.0
+"""[m] A person next to a vertical face whose upper edge is lower than this (a table's
+side) rises above that edge unless lying down (``floor_shell_height``), and is seen there.
+In front of a taller face (a rack, a wall, a machine) a person may stand or crouch wholly
+below its edge, so its noise sheet is judged only ``standing_depth`` deep."""
+
 
 def measured_sheets(cell: Cell, cameras: Sequence[StaticCamera]) -> tuple[Sheet, ...]:
     """:func:`sheets_of` with each sheet's thickness measured (:func:`sheet_thickness`),
@@ -384,8 +398,10 @@ def measured_sheets(cell: Cell, cameras: Sequence[StaticCamera]) -> tuple[Sheet,
     obstacles; faces no camera sees are left out. The floor's sheet is
     ``plausibility.floor_shell_height`` thick: the stated assumption that nobody lies
     flatter than that; where the floor's sheet is thicker, what crosses that height keeps
-    the sheet around it."""
+    the sheet around it. A vertical face at least ``LOW_FACE`` high has its sheet at most
+    ``plausibility.standing_depth`` thick: nobody standing against it is flatter."""
     h_floor = cell.plausibility.floor_shell_height
+    h_side = cell.plausibility.standing_depth
     out = []
     for s in sheets_of(cell):
         t = sheet_thickness(s, cameras)
@@ -393,6 +409,10 @@ def measured_sheets(cell: Cell, cameras: Sequence[StaticCamera]) -> tuple[Sheet,
             h = h_floor  # a thicker sheet somewhere keeps a margin there (the crossing test)
         elif t > 0:
             h = min(1.25 * t + 0.02, max(SHEET_CAP, h_floor))
+            if s.down >= 0 and s.top >= LOW_FACE:
+                # a person may stand against this face, wholly below its upper edge: they
+                # stick out at least this far from it
+                h = min(h, h_side)
         else:
             continue
         out.append(replace(s, height=h))
@@ -890,7 +910,7 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-4"
+_CACHE_FORMAT = b"polyhull-static-model-5"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
