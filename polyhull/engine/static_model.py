@@ -481,6 +481,8 @@ def remove_sheets(
     sheet's ``height`` [m] (``default_height`` when it has none) of it (over the face's rectangle), except within ``margin`` [m] (along
     the face) of the section of ``region`` at distance ``height`` (minus ``not_people``,
     e.g. the solids), which may be a person's body whose foot or hand is in the sheet.
+    A point in several faces' sheets (along an edge, in a corner) is removed only when no
+    face spares it.
 
     Returns:
         (the region without the sheets, one removal per face that lost something).
@@ -494,7 +496,7 @@ def remove_sheets(
         (x0, y0), (x1, y1) = s.local_box()
         shell = m3.Manifold.cube((x1 - x0, y1 - y0, h + 1e-6)).translate((x0, y0, -1e-6))
         raw.append(shell.transform(_to_world(s.to_local())))
-    cut = []
+    cut, kept, parts = [], [], []
     for j, (s, h) in enumerate(zip(sheets, heights, strict=True)):
         M = s.to_local()
         (x0, y0), (x1, y1) = s.local_box()
@@ -511,17 +513,27 @@ def remove_sheets(
         section = crossing.slice(h)
         if not section.is_empty():
             grown = section.offset(margin, m3.JoinType.Round) if margin > 0 else section
-            slab = slab - m3.Manifold.extrude(grown, h + 4e-6).translate((0.0, 0.0, -2e-6))
+            spared = m3.Manifold.extrude(grown, h + 4e-6).translate((0.0, 0.0, -2e-6)) ^ slab
+            kept.append(spared.transform(_to_world(M)))
+            slab = slab - spared
         part = near ^ slab
         if part.is_empty() or part.volume() <= 0.0:
             continue
-        part_world = part.transform(_to_world(M))
-        volume, centroid = mesh_volume_centroid(part_world)
-        removed.append(RemovedComponent("sheet", volume, centroid, part_world))
+        parts.append(part.transform(_to_world(M)))
         cut.append(slab.transform(_to_world(M)))
     if not cut:
         return region, removed
-    out = region - m3.Manifold.batch_boolean(cut, m3.OpType.Add)
+    # Where sheets meet (a floor along a wall, a corner), a point is in several slabs: it
+    # goes only if none of them spares it (a foot in the corner is spared by the floor's
+    # margin around the legs, though the wall's slab has nothing crossing near it).
+    spared_any = m3.Manifold.batch_boolean(kept, m3.OpType.Add) if kept else m3.Manifold()
+    for part in parts:
+        part = part - spared_any
+        if part.is_empty() or part.volume() <= 0.0:
+            continue
+        volume, centroid = mesh_volume_centroid(part)
+        removed.append(RemovedComponent("sheet", volume, centroid, part))
+    out = region - (m3.Manifold.batch_boolean(cut, m3.OpType.Add) - spared_any)
     return check_manifold(out, "static region without its noise sheets"), removed
 
 
@@ -910,7 +922,7 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-5"
+_CACHE_FORMAT = b"polyhull-static-model-6"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
