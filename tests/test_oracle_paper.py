@@ -37,12 +37,16 @@ def paper() -> tuple[Monitor, Simulator]:
     return Monitor(cell, references=sim.reference()), sim
 
 
-@settings(
+# a few derandomized examples each (CI); HYPOTHESIS_PROFILE=explore draws fresh ones
+SEARCH = settings(
     max_examples=5,
     deadline=None,
     phases=[Phase.explicit, Phase.generate],
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.filter_too_much],
 )
+
+
+@SEARCH
 @given(
     x=st.floats(0.4, 5.6),
     y=st.floats(0.4, 5.6),
@@ -97,12 +101,7 @@ def _beside(bounds: np.ndarray, side: int, along: float, gap: float) -> tuple[fl
     return x0 + along * (x1 - x0), (y0 - gap if side == 2 else y1 + gap)
 
 
-@settings(
-    max_examples=5,
-    deadline=None,
-    phases=[Phase.explicit, Phase.generate],
-    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.filter_too_much],
-)
+@SEARCH
 @given(
     obstacle=st.integers(0, 2),
     side=st.integers(0, 3),
