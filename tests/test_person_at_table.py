@@ -27,6 +27,7 @@ from conftest import exactly_possibly_occupied, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
+from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -120,6 +121,35 @@ def test_a_toe_in_the_corner_of_a_wall_a_rack_and_the_floor_stays_in_r3(paper: t
     body = body[cell.zone.contains(body) & ~_solid(cell, body)]
     corner = (body[:, 0] < 0.15) & (body[:, 1] > 5.1) & (body[:, 1] < 5.25) & (body[:, 2] < 0.3)
     assert corner.sum() >= 1  # the scene has what the test is about
+    in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
+    ok = in_r3 | monitor.in_robot_shadow(body) | ~exactly_possibly_occupied(monitor, frames, body)
+    assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+
+
+def test_fingers_between_a_table_and_the_wall_stay_in_r3(paper: tuple[Monitor, Simulator]) -> None:
+    """Found by a randomised search of walks: a person walking along the south table's east
+    end toward the south wall, a hand swinging over the table's corner, the fingers in the
+    5 cm gap between the table and the wall at the table top's height (under the wall's
+    noise sheet, 0.4 m deep there). The body seen near the wall reaches into the wall's
+    sheet only as deep as it was measured; when the static model judged a tall face's sheet
+    only ``standing_depth`` deep, the dynamic rules took that as the sheet's depth too, and
+    nothing kept the sheet over the fingers."""
+    monitor, sim = paper
+    cell = monitor.cell
+    robot = monitor.robot
+    assert robot is not None
+    q0 = np.array([0.69348911, -0.23017804, -1.57578086, 1.37837674, 0.71291334, 1.32270494])
+    t = 0.6
+    q = robot_motion(q0, robot.lower, robot.upper, t)
+    person = make_person(height=1.7890505020546064, pose="walking", position=(3.96217431, 0.31), yaw=-np.pi / 2, phase=0.6)
+    frames = sim.render(q, targets=[person], seed=9999 * 1000 + 264 * 20 + 6, stamp=t, effects=SensorEffects())
+    monitor.reset()
+    v = monitor.step(frames, q, stamp=t)
+    assert not v.faults, v.faults
+    body = np.concatenate([sample_points_inside(person, 3000, seed=26406), [[3.6677032367600617, 0.045138113487146435, 0.7980142518148217]]])
+    body = body[cell.zone.contains(body) & ~_solid(cell, body)]
+    gap = (body[:, 1] < 0.05) & (body[:, 0] < 3.8) & (body[:, 2] > 0.7)
+    assert gap.sum() >= 1  # the scene has what the test is about
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
     ok = in_r3 | monitor.in_robot_shadow(body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"

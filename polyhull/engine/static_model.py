@@ -398,10 +398,8 @@ def measured_sheets(cell: Cell, cameras: Sequence[StaticCamera]) -> tuple[Sheet,
     obstacles; faces no camera sees are left out. The floor's sheet is
     ``plausibility.floor_shell_height`` thick: the stated assumption that nobody lies
     flatter than that; where the floor's sheet is thicker, what crosses that height keeps
-    the sheet around it. A vertical face at least ``LOW_FACE`` high has its sheet at most
-    ``plausibility.standing_depth`` thick: nobody standing against it is flatter."""
+    the sheet around it."""
     h_floor = cell.plausibility.floor_shell_height
-    h_side = cell.plausibility.standing_depth
     out = []
     for s in sheets_of(cell):
         t = sheet_thickness(s, cameras)
@@ -409,10 +407,6 @@ def measured_sheets(cell: Cell, cameras: Sequence[StaticCamera]) -> tuple[Sheet,
             h = h_floor  # a thicker sheet somewhere keeps a margin there (the crossing test)
         elif t > 0:
             h = min(1.25 * t + 0.02, max(SHEET_CAP, h_floor))
-            if s.down >= 0 and s.top >= LOW_FACE:
-                # a person may stand against this face, wholly below its upper edge: they
-                # stick out at least this far from it
-                h = min(h, h_side)
         else:
             continue
         out.append(replace(s, height=h))
@@ -470,17 +464,29 @@ def sheet_heights(sheet: Sheet, hull_contains, step: float = 0.01) -> np.ndarray
     return np.minimum(grown + 2.0 * step, sheet.height)
 
 
+def removal_depth(sheet: Sheet, default_height: float, standing_depth: float) -> float:
+    """How deep [m] the static model removes a face's noise sheet: its height (the floor's
+    ``default_height`` when it has none), and in front of a vertical face at least
+    ``LOW_FACE`` high, where a person may stand wholly below the edge, at most
+    ``standing_depth`` (nobody standing against it is flatter; the sheet beyond stays in
+    the static region)."""
+    h = sheet.height if sheet.height > 0 else default_height
+    return min(h, standing_depth) if sheet.down >= 0 and sheet.top >= LOW_FACE else h
+
+
 def remove_sheets(
     region: m3.Manifold,
     sheets: Sequence[Sheet],
     default_height: float,
     margin: float,
     not_people: m3.Manifold,
+    standing_depth: float = math.inf,
 ) -> tuple[m3.Manifold, list[RemovedComponent]]:
     """Remove the noise sheet in front of each face: the part of ``region`` within the
     sheet's ``height`` [m] (``default_height`` when it has none) of it (over the face's rectangle), except within ``margin`` [m] (along
     the face) of the section of ``region`` at distance ``height`` (minus ``not_people``,
-    e.g. the solids), which may be a person's body whose foot or hand is in the sheet.
+    e.g. the solids), which may be a person's body whose foot or hand is in the sheet;
+    a tall vertical face's sheet only :func:`removal_depth` deep.
     A point in several faces' sheets (along an edge, in a corner) is removed only when no
     face spares it.
 
@@ -490,7 +496,7 @@ def remove_sheets(
     removed: list[RemovedComponent] = []
     if region.is_empty():
         return region, removed
-    heights = [s.height if s.height > 0 else default_height for s in sheets]
+    heights = [removal_depth(s, default_height, standing_depth) for s in sheets]
     raw = []  # every face's whole shell, world frame
     for s, h in zip(sheets, heights, strict=True):
         (x0, y0), (x1, y1) = s.local_box()
@@ -813,7 +819,9 @@ class StaticModel:
         p = cell.plausibility
         sheets = measured_sheets(cell, cams) if p.floor_shell else ()
         heights = tuple(sheet_heights(sh, lambda pts: _hull_contains(cams, pts, k)) for sh in sheets)
-        rest, removed_sheets = remove_sheets(r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids)
+        rest, removed_sheets = remove_sheets(
+            r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids, p.standing_depth
+        )
         support = (
             m3.Manifold.batch_boolean([o.manifold() for o in cell.obstacles], m3.OpType.Add)
             if cell.obstacles
@@ -922,7 +930,7 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-6"
+_CACHE_FORMAT = b"polyhull-static-model-7"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
