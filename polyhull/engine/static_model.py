@@ -269,11 +269,6 @@ class Sheet:
         return _sheet_frame(self)[3]
 
     @property
-    def top(self) -> float:
-        """The face's highest point [m] (world z)."""
-        return float(self.world_box(0.0)[1][2]) if self.axis != 2 else float(self.level)
-
-    @property
     def down(self) -> int:
         """For a vertical face, the local axis (0 for x, 1 for y) that runs along world z
         (upward); -1 for a horizontal one (the floor, an obstacle's top)."""
@@ -464,14 +459,20 @@ def sheet_heights(sheet: Sheet, hull_contains, step: float = 0.01) -> np.ndarray
     return np.minimum(grown + 2.0 * step, sheet.height)
 
 
-def removal_depth(sheet: Sheet, default_height: float, standing_depth: float) -> float:
-    """How deep [m] the static model removes a face's noise sheet: its height (the floor's
-    ``default_height`` when it has none), and in front of a vertical face at least
-    ``LOW_FACE`` high, where a person may stand wholly below the edge, at most
-    ``standing_depth`` (nobody standing against it is flatter; the sheet beyond stays in
-    the static region)."""
-    h = sheet.height if sheet.height > 0 else default_height
-    return min(h, standing_depth) if sheet.down >= 0 and sheet.top >= LOW_FACE else h
+def removal_depths(cell: Cell, sheets: Sequence[Sheet]) -> tuple[float, ...]:
+    """How deep [m] the static model removes each face's noise sheet: its height (the
+    floor's ``plausibility.floor_shell_height``), and in front of a vertical face of an
+    obstacle whose top is at least ``LOW_FACE`` high, where a person may stand wholly below
+    the edge, at most ``plausibility.standing_depth`` (nobody standing against it is
+    flatter; the sheet beyond stays in the static region)."""
+    p = cell.plausibility
+    tops = {o.name: float(np.asarray(o.mesh.bounds)[1][2]) for o in cell.obstacles}
+    out = []
+    for s in sheets:
+        h = s.height if s.height > 0 else p.floor_shell_height
+        top = tops.get(s.name.rsplit(" ", 1)[0], -math.inf)
+        out.append(min(h, p.standing_depth) if s.down >= 0 and top >= LOW_FACE else h)
+    return tuple(out)
 
 
 def remove_sheets(
@@ -480,13 +481,13 @@ def remove_sheets(
     default_height: float,
     margin: float,
     not_people: m3.Manifold,
-    standing_depth: float = math.inf,
+    depths: Sequence[float] | None = None,
 ) -> tuple[m3.Manifold, list[RemovedComponent]]:
     """Remove the noise sheet in front of each face: the part of ``region`` within the
     sheet's ``height`` [m] (``default_height`` when it has none) of it (over the face's rectangle), except within ``margin`` [m] (along
     the face) of the section of ``region`` at distance ``height`` (minus ``not_people``,
     e.g. the solids), which may be a person's body whose foot or hand is in the sheet;
-    a tall vertical face's sheet only :func:`removal_depth` deep.
+    ``depths`` (:func:`removal_depths`) instead of the heights where given.
     A point in several faces' sheets (along an edge, in a corner) is removed only when no
     face spares it.
 
@@ -496,7 +497,10 @@ def remove_sheets(
     removed: list[RemovedComponent] = []
     if region.is_empty():
         return region, removed
-    heights = [removal_depth(s, default_height, standing_depth) for s in sheets]
+    if depths is None:
+        heights = [s.height if s.height > 0 else default_height for s in sheets]
+    else:
+        heights = list(depths)
     raw = []  # every face's whole shell, world frame
     for s, h in zip(sheets, heights, strict=True):
         (x0, y0), (x1, y1) = s.local_box()
@@ -820,7 +824,7 @@ class StaticModel:
         sheets = measured_sheets(cell, cams) if p.floor_shell else ()
         heights = tuple(sheet_heights(sh, lambda pts: _hull_contains(cams, pts, k)) for sh in sheets)
         rest, removed_sheets = remove_sheets(
-            r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids, p.standing_depth
+            r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids, removal_depths(cell, sheets)
         )
         support = (
             m3.Manifold.batch_boolean([o.manifold() for o in cell.obstacles], m3.OpType.Add)
@@ -930,7 +934,7 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-7"
+_CACHE_FORMAT = b"polyhull-static-model-8"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
