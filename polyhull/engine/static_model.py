@@ -478,18 +478,16 @@ def removal_depths(cell: Cell, sheets: Sequence[Sheet]) -> tuple[float, ...]:
 def remove_sheets(
     region: m3.Manifold,
     sheets: Sequence[Sheet],
-    default_height: float,
+    depths: Sequence[float],
     margin: float,
     not_people: m3.Manifold,
-    depths: Sequence[float] | None = None,
 ) -> tuple[m3.Manifold, list[RemovedComponent]]:
     """Remove the noise sheet in front of each face: the part of ``region`` within the
-    sheet's ``height`` [m] (``default_height`` when it has none) of it (over the face's rectangle), except within ``margin`` [m] (along
-    the face) of the section of ``region`` at distance ``height`` (minus ``not_people``,
-    e.g. the solids), which may be a person's body whose foot or hand is in the sheet;
-    ``depths`` (:func:`removal_depths`) instead of the heights where given.
-    A point in several faces' sheets (along an edge, in a corner) is removed only when no
-    face spares it.
+    face's removal depth [m] (``depths``, :func:`removal_depths`) of it (over the face's
+    rectangle), except within ``margin`` [m] (along the face) of the section of ``region``
+    at that depth (minus ``not_people``, e.g. the solids), which may be a person's body
+    whose foot or hand is in the sheet. A point in several faces' sheets (along an edge, in
+    a corner) is removed only when no face spares it.
 
     Returns:
         (the region without the sheets, one removal per face that lost something).
@@ -497,10 +495,7 @@ def remove_sheets(
     removed: list[RemovedComponent] = []
     if region.is_empty():
         return region, removed
-    if depths is None:
-        heights = [s.height if s.height > 0 else default_height for s in sheets]
-    else:
-        heights = list(depths)
+    heights = list(depths)
     raw = []  # every face's whole shell, world frame
     for s, h in zip(sheets, heights, strict=True):
         (x0, y0), (x1, y1) = s.local_box()
@@ -823,9 +818,7 @@ class StaticModel:
         p = cell.plausibility
         sheets = measured_sheets(cell, cams) if p.floor_shell else ()
         heights = tuple(sheet_heights(sh, lambda pts: _hull_contains(cams, pts, k)) for sh in sheets)
-        rest, removed_sheets = remove_sheets(
-            r2, sheets, p.floor_shell_height, p.floor_shell_margin, solids, removal_depths(cell, sheets)
-        )
+        rest, removed_sheets = remove_sheets(r2, sheets, removal_depths(cell, sheets), p.floor_shell_margin, solids)
         support = (
             m3.Manifold.batch_boolean([o.manifold() for o in cell.obstacles], m3.OpType.Add)
             if cell.obstacles
