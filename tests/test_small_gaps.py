@@ -1,5 +1,6 @@
-"""The small_gaps rule frees only reading-less clusters walled in by the static scene and
-narrower than the detection capability (synthetic images, exact expectations)."""
+"""The small_gaps rule frees only reading-less clusters walled in by the static scene, and
+only where they are narrower than the detection capability (synthetic images, exact
+expectations, and a ball oracle)."""
 
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ def _drop(free, invalid, v0, v1, u0, u1):  # noqa: ANN001, ANN202
 
 
 def _gaps(free, end, invalid, fs, size=SIZE):  # noqa: ANN001, ANN202
-    return small_gaps(free, end, invalid, fs, NEAR, F, F, size)
+    """The pixels the rule frees (to any depth)."""
+    return small_gaps(free, end, invalid, fs, NEAR, F, F, size) > free
 
 
 def test_a_dropout_patch_in_the_static_scene_is_a_small_gap() -> None:
@@ -38,12 +40,18 @@ def test_a_dropout_patch_in_the_static_scene_is_a_small_gap() -> None:
     assert gap.sum() == 16 and gap[20:24, 30:34].all()
 
 
-def test_a_patch_wider_than_the_detection_capability_stays() -> None:
+def test_a_patch_wider_than_the_detection_capability_is_freed_only_in_front() -> None:
     free, end, invalid, fs = _scene()
     _drop(free, invalid, 20, 24, 30, 41)  # 11 px: (11 + 2) * 3.9 / 600 = 0.085 m > 0.07
-    assert not _gaps(free, end, invalid, fs).any()
-    # the same patch is small for a coarser declared capability
+    got = small_gaps(free, end, invalid, fs, NEAR, F, F, SIZE)
+    # a 7 cm ball fits between the walls from z_fit = 0.07 * 600 / 13 = 3.23 m on, so
+    # the patch frees up to 3.23 - 0.035 m and keeps the rest of its segments
+    cut = SIZE * F / 13 - SIZE / 2
+    np.testing.assert_allclose(got[20:24, 30:41], cut, rtol=1e-6)
+    assert (got[~invalid] == free[~invalid]).all()
+    # the same patch is freed wholly for a coarser declared capability
     assert _gaps(free, end, invalid, fs, size=0.1).sum() == 44
+    assert (small_gaps(free, end, invalid, fs, NEAR, F, F, 0.1)[invalid] == end[invalid]).all()
 
 
 def test_valid_readings_are_never_filled() -> None:
@@ -76,7 +84,7 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
 
     mask = (free < end) & invalid
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    out = np.zeros(mask.shape, dtype=bool)
+    out = free.astype(np.float64)
     H, W = mask.shape
     for k in range(1, n + 1):
         vs, us = np.nonzero(labels == k)
@@ -84,16 +92,19 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
         touches_border = vs.min() == 0 or us.min() == 0 or vs.max() == H - 1 or us.max() == W - 1
         f64 = fs[ring].astype(np.float64)  # compared in float64, as the compiled pass does
         closed = not touches_border and not ((f64 <= near) | (free[ring] < fs[ring])).any()
+        if not closed:
+            continue
         zmax = float(end[vs, us].astype(np.float64).max())
-        if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
-            out[vs, us] = True
-    return out
+        z_fit = size / max((np.ptp(us) + 3) / fx, (np.ptp(vs) + 3) / fy)
+        cut = np.inf if zmax < z_fit else z_fit - size / 2
+        out[vs, us] = np.maximum(out[vs, us], np.minimum(end[vs, us].astype(np.float64), cut))
+    return out.astype(np.float32)
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_small_gaps_match_the_plain_rule(seed: int) -> None:
-    """The compiled cluster pass marks exactly what the rule written with ndimage marks."""
+    """The compiled cluster pass frees exactly what the rule written with ndimage frees."""
     rng = np.random.default_rng(seed)
     H, W = (int(x) for x in rng.integers(3, 30, size=2))
     fs = rng.uniform(0.5, 5, size=(H, W)).astype(np.float32)
@@ -105,3 +116,66 @@ def test_small_gaps_match_the_plain_rule(seed: int) -> None:
     size = float(rng.uniform(0.05, 2.0))
     got = small_gaps(free, end, invalid, fs, 0.3, 30.0, 30.0, size)
     np.testing.assert_array_equal(got, _reference_small_gaps(free, end, invalid, fs, 0.3, 30.0, 30.0, size))
+
+
+BALL_F = 40.0  # a coarse camera: a few pixels span the ball
+BALL_H, BALL_W = 24, 24
+BALL_C = (BALL_W - 1) / 2
+
+
+def _rays() -> np.ndarray:
+    """(H, W, 3) the pixel centres' rays, scaled to z-depth 1."""
+    v, u = np.mgrid[0:BALL_H, 0:BALL_W].astype(np.float64)
+    return np.stack([(u - BALL_C) / BALL_F, (v - BALL_C) / BALL_F, np.ones_like(u)], axis=-1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(0, 2**31 - 1),
+    st.floats(0.1, 0.6),  # ball diameter [m] (the declared capability)
+    st.integers(1, 6), st.integers(1, 6),  # the dropout patch [px]
+)
+def test_no_point_of_a_ball_of_the_declared_size_is_freed(seed: int, size: float, ph: int, pw: int) -> None:
+    """Independent oracle: a ball of diameter ``size`` stands in front of a wall; pixels
+    whose centre ray meets it read it (z-depth of the hit), a dropout patch reads nothing.
+    Where the rule frees a pixel, no point of the ball that projects to it lies in front of
+    its new free depth (elsewhere, the ball's points within a pixel's footprint may lie in
+    front of its centre ray's reading: the pixel model, not this rule). 20 balls each."""
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        _ball_in_a_patch(rng, size, ph, pw)
+
+
+def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int) -> None:
+    wall = 8.0
+    rays = _rays()
+    fs = np.full((BALL_H, BALL_W), wall - 0.1, dtype=np.float32)
+    v0, u0 = int(rng.integers(4, BALL_H - 4 - ph)), int(rng.integers(4, BALL_W - 4 - pw))
+    # the ball's centre on a ray through the patch (or near it), wholly in front of the wall
+    pv, pu = v0 + rng.uniform(-1.5, ph + 0.5), u0 + rng.uniform(-1.5, pw + 0.5)
+    zc = rng.uniform(NEAR + size, wall - 0.1 - size / 2)
+    centre = np.array([(pu - BALL_C) / BALL_F, (pv - BALL_C) / BALL_F, 1.0]) * zc
+    r = size / 2
+    # ray-ball hits (rays are d = rays[v, u], points t * d, z-depth t)
+    d = rays.reshape(-1, 3)
+    a = (d * d).sum(axis=1)
+    b = -2 * d @ centre
+    c = centre @ centre - r * r
+    disc = b * b - 4 * a * c
+    hit = (disc >= 0).reshape(BALL_H, BALL_W)
+    t_hit = ((-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)).reshape(BALL_H, BALL_W)
+    free = np.where(hit, t_hit - 0.05, fs).astype(np.float32)
+    end = fs.copy()
+    invalid = np.zeros((BALL_H, BALL_W), dtype=bool)
+    free[v0 : v0 + ph, u0 : u0 + pw] = NEAR
+    invalid[v0 : v0 + ph, u0 : u0 + pw] = True
+    got = small_gaps(free, end, invalid, fs, NEAR, BALL_F, BALL_F, size)
+    # the ball's points (a shell and its interior), projected to their pixels
+    x = rng.normal(size=(4000, 3))
+    x = centre + r * x / np.linalg.norm(x, axis=1, keepdims=True) * rng.uniform(0, 1, size=(4000, 1)) ** (1 / 3)
+    u = np.rint(x[:, 0] / x[:, 2] * BALL_F + BALL_C).astype(int)
+    v = np.rint(x[:, 1] / x[:, 2] * BALL_F + BALL_C).astype(int)
+    inside = (u >= 0) & (u < BALL_W) & (v >= 0) & (v < BALL_H)
+    vi, ui = v[inside], u[inside]
+    lost = (x[inside, 2] < got[vi, ui]) & (got[vi, ui] > free[vi, ui])
+    assert not lost.any(), f"{int(lost.sum())} ball points freed (patch {ph}x{pw} at {v0},{u0}, z {zc:.2f})"
