@@ -148,3 +148,53 @@ def test_people_beside_an_obstacle_stay_in_r3(
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
     ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+
+
+@SEARCH
+@given(
+    r0=st.floats(0.6, 1.5),
+    bearing=st.floats(-np.pi, np.pi),
+    heading=st.floats(-1.2, 1.2),
+    step=st.floats(0.05, 0.15),
+    height=st.floats(1.5, 1.95),
+    pose=st.sampled_from(["standing", "walking", "reaching"]),
+    q01=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
+    dq=st.lists(st.floats(-0.08, 0.08), min_size=6, max_size=6),
+    effects=st.sampled_from(["none", "all", "no flying pixels"]),
+    seed=st.integers(0, 100_000),
+)
+def test_people_walking_up_to_the_robot_stay_in_r3(
+    paper: tuple[Monitor, Simulator],
+    r0: float, bearing: float, heading: float, step: float, height: float, pose: str,
+    q01: list[float], dq: list[float], effects: str, seed: int,
+) -> None:
+    """A person 0.6 to 1.5 m from the robot's base walks up to it (or past it) for four
+    cycles of 0.1 s while the robot moves: where the robot's raster explains readings, its
+    shadow is subtracted and the shadow memory carries what it hid. Every body point of
+    every cycle in R3 or excused; a cycle that stops for a contact ends the walk."""
+    monitor, sim = paper
+    cell, robot = monitor.cell, monitor.robot
+    assert robot is not None
+    bx, by = cell.robot.base[:2]  # type: ignore[union-attr]
+    x0, y0 = bx + r0 * np.cos(bearing), by + r0 * np.sin(bearing)
+    head = bearing + np.pi + heading
+    q = robot.lower + np.asarray(q01) * (robot.upper - robot.lower)
+    chosen = {"none": SensorEffects.none(), "all": SensorEffects(), "no flying pixels": SensorEffects(flying_pixels=False)}
+    monitor.reset()
+    for c in range(4):
+        x, y = x0 + c * step * np.cos(head), y0 + c * step * np.sin(head)
+        if np.hypot(x - bx, y - by) < 0.45:  # on the robot's base
+            break
+        person = make_person(height=height, pose=pose, position=(x, y), yaw=head)  # type: ignore[arg-type]
+        qc = np.clip(q + c * np.asarray(dq), robot.lower, robot.upper)
+        t = 1.0 + 0.1 * c
+        frames = sim.render(qc, targets=[person], seed=seed + c, stamp=t, effects=chosen[effects])
+        v = monitor.step(frames, qc, stamp=t)
+        assert not any("internal" in f for f in v.faults), v.faults
+        if v.faults:  # a contact stops the robot whatever the region
+            break
+        body = sample_points_inside(person, 300, seed=seed + c)
+        body = body[cell.zone.contains(body)]
+        in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
+        ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+        assert ok.all(), f"cycle {c}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
