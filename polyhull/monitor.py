@@ -79,7 +79,16 @@ from .engine.pixels import (
     tile_segments,
     window_range,
 )
-from .engine.refine import FRONT_SLACK, MEMORY, OWN, REACH_EXTRA, SPARED, RegionRules, refine_kept
+from .engine.refine import (
+    FRONT,
+    FRONT_SLACK,
+    MEMORY,
+    OWN,
+    REACH_EXTRA,
+    SPARED,
+    RegionRules,
+    refine_kept,
+)
 from .engine.robot_raster import PaddedPieces, RasterBuffers, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
 from .engine.threads import share
@@ -366,6 +375,15 @@ class Monitor:
         self._shadow = ShadowMemory(
             cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
             self._tile_tol,
+        )
+        # a colour camera's robot occlusion is in front of the robot too
+        self._shadow_front = (
+            ShadowMemory(
+                cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
+                self._tile_tol, front=True,
+            )
+            if any(c.kind == "color" for c in cell.cameras)
+            else None
         )
         # a cycle's images (held by its verdict and last_images) and its rasters (held by
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
@@ -790,7 +808,7 @@ class Monitor:
 
         # the robot shadow's memory near what the previous cycle saw as a target
         dt = None if self._prev_stamp is None else max(t - self._prev_stamp, 0.0)
-        memory = PieceSet.empty()
+        memory = memory_front = PieceSet.empty()
         mem_seeds = None  # the previous cycle's seeds, and a person's reach since
         if (
             cell.reconstruction.shadow_memory
@@ -802,13 +820,16 @@ class Monitor:
         ):
             s_lo, s_hi, reach = self._seed_lo, self._seed_hi, safety.human_speed * dt + 1e-3
             mem_seeds = (s_lo, s_hi, reach)
-            memory = self._timed(
-                timings,
-                "memory",
-                lambda: self._shadow.pieces(
+
+            def remember(shadow: ShadowMemory) -> PieceSet:
+                return shadow.pieces(
                     rasters, free_imgs, lambda init, f, e: run_carve(init, f, e, True)[0], s_lo, s_hi, reach, self._pool
-                ),
-            )
+                )
+
+            memory = self._timed(timings, "memory", lambda: remember(self._shadow))
+            if self._shadow_front is not None:
+                memory_front = self._timed(timings, "memory", lambda: remember(self._shadow_front))  # type: ignore[arg-type]
+        memory = PieceSet.concat([memory, memory_front])
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)
         at_robot = _at_robot(allp.boxes, [rasters.get(c.name) for c in cell.cameras])
@@ -845,13 +866,19 @@ class Monitor:
         # distance, with the kept pieces that decide it carved finely (the frontier), and
         # the sheets under what stands on a surface
         is_memory = np.arange(len(allp)) >= len(pieces)
-        flags = (np.where(result.own, OWN, 0) | np.where(is_memory, MEMORY, 0) | np.where(result.spared, SPARED, 0))[
-            result.keep
-        ].astype(np.int8)
+        is_front = np.arange(len(allp)) >= len(allp) - len(memory_front)
+        flags = (
+            np.where(result.own, OWN, 0)
+            | np.where(is_memory, MEMORY, 0)
+            | np.where(is_front, FRONT, 0)
+            | np.where(result.spared, SPARED, 0)
+        )[result.keep].astype(np.int8)
 
-        def recarve(boxes: np.ndarray, mem: bool, offset: float, alpha: float, size_min: float) -> PieceSet:
+        def recarve(boxes: np.ndarray, piece_flags: int, offset: float, alpha: float, size_min: float) -> PieceSet:
             p = replace(params, size_min=size_min, alpha=alpha)
-            mem_stacks = self._shadow.stacks
+            mem = bool(piece_flags & MEMORY)
+            shadow = self._shadow_front if piece_flags & FRONT else self._shadow
+            mem_stacks = None if shadow is None else shadow.stacks
             frees, ends = mem_stacks if mem and mem_stacks is not None else (free_stack, end_stack)
             out = carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
             if mem and mem_seeds is not None:
@@ -1047,8 +1074,13 @@ class Monitor:
         if not padded_world:
             return m3.Manifold()
         pad = self._padding
+        # a depth camera's shadow starts in the tolerance band before the padded robot, a
+        # colour camera's at ``near`` (binary depth: the robot hides the whole ray)
         bands = [
-            (lambda z, c=cam: np.maximum(0.0, 2.0 * c.tau(z) - pad)) for cam in self.cell.cameras
+            (lambda z, c=cam: np.maximum(0.0, z - c.near))
+            if cam.kind == "color"
+            else (lambda z, c=cam: np.maximum(0.0, 2.0 * c.tau(z) - pad))
+            for cam in self.cell.cameras
         ]
         union = m3.Manifold.batch_boolean([f for f in self.static.free if not f.is_empty()], m3.OpType.Add) ^ self._zone
         return robot_occlusion(self.cell.cameras, self.static.free, union, padded_world, bands)

@@ -210,7 +210,7 @@ def test_color8_cell() -> None:
     assert cell.zone.volume == pytest.approx(126.0)
     assert len(cell.cameras) == 8
     assert all(c.kind == "color" and c.shape == (480, 640) for c in cell.cameras)
-    assert len(cell.obstacles) == 3
+    assert len(cell.obstacles) == 7  # two tables, a rack and four walls
     assert cell.robot is not None
     assert cell.reconstruction.k_of_n == 2
     # Every camera sees the robot base.

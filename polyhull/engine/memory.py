@@ -88,22 +88,36 @@ class ShadowMemory:
     robot, ``+inf`` / ``-inf`` for none), reused every cycle: only the robot's rectangle of
     each camera is written, and reset at the next cycle's start.
 
+    A colour camera (binary depth) hides the whole ray of a pixel the robot changes, in
+    front of the robot too: its ``M`` there is that part as well. A second memory with
+    ``front=True`` holds it: each covered pixel's segment from the camera's free depth to
+    the padded robot's front, for the colour cameras only (a depth camera sees what stands
+    in front of the robot).
+
     Args:
         cameras: The cell's cameras.
         free_static: Each camera's static free depth image [m].
         stack: The cameras as arrays.
         tile: Tile edge [px] (the same tiles as the image's pieces).
         tile_tol: How far [m] a tile's merged piece may reach into the robot's padding.
+        front: The part in front of the robot (colour cameras), not the part behind it.
     """
 
     def __init__(
-        self, cameras: Sequence[Camera], free_static: Sequence[ArrayF32], stack: CameraStack, tile: int, tile_tol: float
+        self,
+        cameras: Sequence[Camera],
+        free_static: Sequence[ArrayF32],
+        stack: CameraStack,
+        tile: int,
+        tile_tol: float,
+        front: bool = False,
     ) -> None:
         self._cameras = tuple(cameras)
         self._free_static = tuple(free_static)
         self._stack = stack
         self._tile = int(tile)
         self._tile_tol = float(tile_tol)
+        self._front = bool(front)
         self._stacks: tuple[ImageStack, ImageStack] | None = None
         self._rects: list[tuple[slice, slice] | None] = [None] * len(self._cameras)
 
@@ -143,22 +157,27 @@ class ShadowMemory:
                 mem_free.image(i)[prev] = np.inf  # no segment
                 mem_end.image(i)[prev] = -np.inf
                 self._rects[i] = None
-            if raster is None or free is None or raster.rect is None:
+            if raster is None or free is None or raster.rect is None or (self._front and cam.kind != "color"):
                 return None
             u0, u1, v0, v1 = raster.rect
-            # the grown seed boxes behind the robot's nearest back depth, as pixel
-            # rectangles within the covered pixels' rectangle
+            # the grown seed boxes behind the robot's nearest back depth (in front of the
+            # robot: anywhere), as pixel rectangles within the covered pixels' rectangle
             k = cam.intrinsics
-            rects, zr = box_rects(
-                lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), max(cam.near, raster.back_min), raster.rect
-            )
+            beyond = cam.near if self._front else max(cam.near, raster.back_min)
+            rects, zr = box_rects(lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), beyond, raster.rect)
             # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
             H, W = cam.shape
             tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile
             tw = (slice(tv0, min((v1 // tile + 1) * tile, H)), slice(tu0, min((u1 // tile + 1) * tile, W)))
             self._rects[i] = tw
+            if self._front:
+                # from the free depth (no lower bound of the robot's) to its padded front
+                start, stop = free[tw], np.minimum(self._free_static[i][tw], raster.front[tw])
+            else:
+                start, stop = raster.back[tw], self._free_static[i][tw]
+            c = np.ascontiguousarray  # one layout for both parts (one compiled signature)
             f, e = memory_segments(
-                raster.covered[tw], raster.back[tw], free[tw], self._free_static[i][tw],
+                c(raster.covered[tw]), c(start), c(free[tw]), c(stop),
                 rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw], tile,
             )
             tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)

@@ -54,6 +54,7 @@ from .static_model import SHEET_PITCH
 __all__ = [
     "BAND",
     "FINE",
+    "FRONT",
     "MEMORY",
     "OWN",
     "FRONT_SLACK",
@@ -134,6 +135,9 @@ SPARED = 4
 SETTLED = 8
 """Flag: carving returned the piece unchanged (no camera frees any of it, or it is at its
 size budget): not carved again this cycle."""
+FRONT = 16
+"""Flag (with ``MEMORY``): the piece is of the memory's part in front of the robot (a colour
+camera's, carved with those segments)."""
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -191,9 +195,10 @@ class Refined(NamedTuple):
     rounds: int
 
 
-Recarve = Callable[[np.ndarray, bool, float, float, float], PieceSet]
-"""``recarve(boxes (M, 7), memory, offset, alpha, size_min)``: carve the boxes again (with
-the memory's segments when ``memory``) with that size budget, ``offset`` [m] subtracted
+Recarve = Callable[[np.ndarray, int, float, float, float], PieceSet]
+"""``recarve(boxes (M, 7), flags, offset, alpha, size_min)``: carve the boxes again (with
+the memory's segments when ``flags`` hold ``MEMORY``, its front part's with ``FRONT``)
+with that size budget, ``offset`` [m] subtracted
 from each piece's distance to the robot."""
 
 
@@ -302,7 +307,7 @@ def refine_kept(
                 # a quarter of the largest size per round: the next round splits again
                 # only what still decides the distance or crosses a sheet's top
                 smin = max(FINE, 0.25 * float(size[idx].max()))
-                new = recarve(kept.boxes[idx], bool(f & MEMORY), front, a, smin)
+                new = recarve(kept.boxes[idx], int(f), front, a, smin)
                 parts.append(new)
                 out_flags.append(np.where(_same_rows(new.boxes, kept.boxes[idx]), f | SETTLED, f).astype(flags.dtype))
         n_rest = int((~sel).sum())

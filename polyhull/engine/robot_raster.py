@@ -153,7 +153,10 @@ class RobotRaster:
             (+inf elsewhere).
         back: (H, W) upper bound of the padded robot's farthest depth over each covered
             pixel [m] (-inf elsewhere): behind it, the pixel's ray has left the robot.
-        shadow_start: (H, W) depth where the robot's shadow starts [m] (+inf elsewhere).
+        shadow_start: (H, W) depth where the robot's shadow starts [m] (+inf elsewhere):
+            for a depth camera just before the padded robot's front (the depth tolerance
+            band), for a colour camera ``near`` (binary depth: a pixel the robot changes
+            frees nothing, so in the empty cell with the robot its whole ray is hidden).
         rect: (u0, u1, v0, v1) inclusive bounding rectangle of the covered pixels, or
             None when the robot covers none.
         back_min: The least ``back`` over the covered pixels [m] (+inf when none).
@@ -484,7 +487,7 @@ def rasterize_robot(
             back_min = _finish(
                 buffers.zbuf, buffers.zback, int(rect[0]), int(rect[1]), int(rect[2]), int(rect[3]),
                 float(camera.near), float(camera.tolerance_sigmas * camera.noise), float(camera.tolerance_min),
-                float(pieces.padding), covered, front, back, start, out,
+                float(pieces.padding), camera.kind == "color", covered, front, back, start, out,
             )
             if out[1] >= out[0]:
                 box = (int(out[0]), int(out[1]), int(out[2]), int(out[3]))
@@ -500,9 +503,9 @@ def rasterize_robot(
 
 
 @nb.njit(cache=True, nogil=True)
-def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front, back, start, out):  # pragma: no cover - compiled
-    """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``,
-    over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there. Grows
+def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, binary, covered, front, back, start, out):  # pragma: no cover - compiled
+    """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``
+    (``near`` for a ``binary``-depth camera: its whole ray is hidden), over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there. Grows
     ``out`` (u0, u1, v0, v1) to the covered pixels' rectangle; returns their least back
     depth.
 
@@ -538,9 +541,12 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, covered, front,
             out[1] = max(out[1], u)
             out[2] = min(out[2], v)
             out[3] = max(out[3], v)
-            tau = max(a * z * z, tmin)
-            s = max(z - max(0.0, 2.0 * tau - padding), near)
-            start[v, u] = _round32(s, -1, bits_f, bits_i)
+            if binary:
+                start[v, u] = _round32(near, -1, bits_f, bits_i)
+            else:
+                tau = max(a * z * z, tmin)
+                s = max(z - max(0.0, 2.0 * tau - padding), near)
+                start[v, u] = _round32(s, -1, bits_f, bits_i)
     return back_min
 
 
