@@ -376,6 +376,7 @@ class Monitor:
             cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
             self._tile_tol,
         )
+        self._binary = tuple(c.kind == "color" for c in cell.cameras)
         # a colour camera's robot occlusion is in front of the robot too
         self._shadow_front = (
             ShadowMemory(
@@ -923,7 +924,7 @@ class Monitor:
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
         self._prev_lo, self._prev_hi = vertex_bounds(observed)
-        seeds = seen_parts(allp.boxes[result.seeds], free_imgs, self._stack)
+        seeds = seen_parts(allp.boxes[result.seeds], free_imgs, self._stack, self._binary)
         self._seed_lo, self._seed_hi = vertex_bounds(seeds)
         self._prev_stamp = t
         self._prev_distance = float(dist.distance)

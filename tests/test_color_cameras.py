@@ -21,6 +21,8 @@ from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid, rescale_camera
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import STATIC_TOLERANCE, points_in_hexahedra
+from polyhull.engine.memory import seen_parts
+from polyhull.engine.pieces import CameraStack, piece_vertices
 from polyhull.engine.static_model import _bends
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -190,3 +192,18 @@ def test_the_memory_holds_what_m_hides_in_front_of_the_robot(color: tuple[Monito
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
     lost = hidden & ~in_r3 & ~_solid(cell, body)
     assert not lost.any(), f"{lost.sum()} of {hidden.sum()} body points in M not held: {body[lost][:5]}"
+
+
+def test_a_colour_cameras_pieces_seed_the_memory_whole() -> None:
+    """A colour camera measures no surface (a changed pixel frees nothing): the memory's
+    seeds are its pieces whole, not their first ``SEED_DEPTH`` behind ``near``, which held
+    next to nothing of a person seen only by colour cameras."""
+    cell = load_cell(default_cell_path())
+    stack = CameraStack.of(cell.cameras)
+    H, W = cell.cameras[0].shape
+    free = np.full((H, W), cell.cameras[0].near, dtype=np.float32)  # changed: frees nothing
+    boxes = np.array([[0, 200, 207, 100, 107, 2.0, 4.5]])
+    frees = [free] + [None] * (len(cell.cameras) - 1)
+    assert len(seen_parts(boxes, frees, stack)) == 0  # a depth camera: beyond near + SEED_DEPTH
+    whole = seen_parts(boxes, frees, stack, binary=[True] + [False] * (len(cell.cameras) - 1))
+    np.testing.assert_allclose(whole, piece_vertices(boxes, stack))

@@ -52,11 +52,15 @@ SEED_DEPTH = 0.6
 memory's seeds are the seen parts of the kept pieces, not the shadow behind them)."""
 
 
-def seen_parts(boxes: ArrayF64, free_imgs: Sequence[np.ndarray | None], stack: CameraStack) -> ArrayF64:
+def seen_parts(
+    boxes: ArrayF64, free_imgs: Sequence[np.ndarray | None], stack: CameraStack, binary: Sequence[bool] = ()
+) -> ArrayF64:
     """(S, 8, 3) the parts of pieces (boxes (N, 7)) within ``SEED_DEPTH`` behind the
     surface their pixels measured: the depth range ``[max(z0, f_min), min(z1, f_max +
     SEED_DEPTH)]`` with ``f`` the camera's free depth over the piece's pixels. Pieces of a
-    camera without a frame, or entirely deeper, give nothing."""
+    camera without a frame, or entirely deeper, give nothing. A camera marked in
+    ``binary`` (a colour camera) measures no surface: a changed pixel frees nothing, and
+    what it saw may lie anywhere along its piece, which is kept whole."""
     out = []
     cams = boxes[:, 0].astype(np.int64)
     for c in np.unique(cams):
@@ -64,6 +68,9 @@ def seen_parts(boxes: ArrayF64, free_imgs: Sequence[np.ndarray | None], stack: C
         if free is None:
             continue
         b = boxes[cams == c].copy()
+        if int(c) < len(binary) and binary[int(c)]:
+            out.append(b)
+            continue
         f_lo, f_hi = window_range(free, b[:, 1:5].astype(np.int64))
         b[:, 5] = np.maximum(b[:, 5], f_lo)
         b[:, 6] = np.minimum(b[:, 6], f_hi + SEED_DEPTH)
