@@ -18,7 +18,7 @@ import pytest
 from conftest import exactly_possibly_occupied, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
-from polyhull.commands.bench import _solid, rescale_camera
+from polyhull.commands.bench import _pixels, _solid, rescale_camera
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import STATIC_TOLERANCE, points_in_hexahedra
 from polyhull.engine.memory import seen_parts
@@ -50,13 +50,8 @@ def _counts(monitor: Monitor, points: np.ndarray, robot: bool) -> np.ndarray:
         r = monitor.last_images.raster.get(cam.name) if robot and monitor.last_images is not None else None
         if r is not None:
             f = np.where(r.covered, np.minimum(f, r.shadow_start), f)
-        uv, z = cam.project(points)
-        H, W = cam.shape
-        with np.errstate(invalid="ignore"):
-            ok = (z >= cam.near) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
-        ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(int), 0, W - 1)
-        vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(int), 0, H - 1)
-        count += ok & (z <= f[vi, ui])
+        ui, vi, z, ok = _pixels(cam, points)
+        count += ok & (z >= cam.near) & (z <= f[vi, ui])
     return count
 
 
@@ -149,12 +144,7 @@ def _in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
         r = monitor.last_images.raster.get(cam.name)
         if r is None:
             continue
-        uv, z = cam.project(points)
-        H, W = cam.shape
-        with np.errstate(invalid="ignore"):
-            ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
-        ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(int), 0, W - 1)
-        vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(int), 0, H - 1)
+        ui, vi, z, ok = _pixels(cam, points)
         cov = ok & r.covered[vi, ui]
         some |= cov
         every &= ~cov | ((z >= r.front[vi, ui]) & (z <= r.back[vi, ui]))
