@@ -1021,17 +1021,17 @@ class Monitor:
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
-            g = small_gap_pixels(
+            vu = small_gap_pixels(
                 cls.free, cls.end, cls.invalid, s.free_static, cam.near,
                 cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
                 tiles=(cell.reconstruction.tile, cls.tiles),
             )
-            if len(g):
-                v_idx, u_idx = g[:, 0].astype(np.int64), g[:, 1].astype(np.int64)
+            if len(vu):
+                v_idx, u_idx = vu[:, 0], vu[:, 1]
                 gaps = np.column_stack(
-                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], g[:, 2]]
+                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], cls.end[v_idx, u_idx]]
                 )
-                cls.free[v_idx, u_idx] = g[:, 2]
+                cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
         # (also without a frame: the pyramids must follow the images they are kept for)
         pyramids.update_camera(i, buffers.changed)
         tiles = tile_segments(

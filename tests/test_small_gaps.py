@@ -1,6 +1,6 @@
-"""The small_gaps rule frees only reading-less clusters walled in by the static scene, and
-only where they are narrower than the detection capability (synthetic images, exact
-expectations, and a ball oracle)."""
+"""The small_gaps rule frees only reading-less clusters walled in by the static scene and
+narrower than the detection capability (synthetic images, exact expectations, and a ball
+oracle)."""
 
 from __future__ import annotations
 
@@ -29,8 +29,7 @@ def _drop(free, invalid, v0, v1, u0, u1):  # noqa: ANN001, ANN202
 
 
 def _gaps(free, end, invalid, fs, size=SIZE):  # noqa: ANN001, ANN202
-    """The pixels the rule frees (to any depth)."""
-    return small_gaps(free, end, invalid, fs, NEAR, F, F, size) > free
+    return small_gaps(free, end, invalid, fs, NEAR, F, F, size)
 
 
 def test_a_dropout_patch_in_the_static_scene_is_a_small_gap() -> None:
@@ -40,18 +39,12 @@ def test_a_dropout_patch_in_the_static_scene_is_a_small_gap() -> None:
     assert gap.sum() == 16 and gap[20:24, 30:34].all()
 
 
-def test_a_patch_wider_than_the_detection_capability_is_freed_only_in_front() -> None:
+def test_a_patch_wider_than_the_detection_capability_stays() -> None:
     free, end, invalid, fs = _scene()
     _drop(free, invalid, 20, 24, 30, 41)  # 11 px: (11 + 2) * 3.9 / 600 = 0.085 m > 0.07
-    got = small_gaps(free, end, invalid, fs, NEAR, F, F, SIZE)
-    # a 7 cm ball fits between the walls from z_fit = 0.07 * 600 / 13 = 3.23 m on, so
-    # the patch frees up to 3.23 - 0.035 m and keeps the rest of its segments
-    cut = SIZE * F / 13 - SIZE / 2
-    np.testing.assert_allclose(got[20:24, 30:41], cut, rtol=1e-6)
-    assert (got[~invalid] == free[~invalid]).all()
-    # the same patch is freed wholly for a coarser declared capability
+    assert not _gaps(free, end, invalid, fs).any()
+    # the same patch is small for a coarser declared capability
     assert _gaps(free, end, invalid, fs, size=0.1).sum() == 44
-    assert (small_gaps(free, end, invalid, fs, NEAR, F, F, 0.1)[invalid] == end[invalid]).all()
 
 
 def test_valid_readings_are_never_filled() -> None:
@@ -84,7 +77,7 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
 
     mask = (free < end) & invalid
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    out = free.astype(np.float64)
+    out = np.zeros(mask.shape, dtype=bool)
     H, W = mask.shape
     for k in range(1, n + 1):
         vs, us = np.nonzero(labels == k)
@@ -92,19 +85,16 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
         touches_border = vs.min() == 0 or us.min() == 0 or vs.max() == H - 1 or us.max() == W - 1
         f64 = fs[ring].astype(np.float64)  # compared in float64, as the compiled pass does
         closed = not touches_border and not ((f64 <= near) | (free[ring] < fs[ring])).any()
-        if not closed:
-            continue
         zmax = float(end[vs, us].astype(np.float64).max())
-        z_fit = size / max((np.ptp(us) + 3) / fx, (np.ptp(vs) + 3) / fy)
-        cut = np.inf if zmax < z_fit else z_fit - size / 2
-        out[vs, us] = np.maximum(out[vs, us], np.minimum(end[vs, us].astype(np.float64), cut))
-    return out.astype(np.float32)
+        if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
+            out[vs, us] = True
+    return out
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_small_gaps_match_the_plain_rule(seed: int) -> None:
-    """The compiled cluster pass frees exactly what the rule written with ndimage frees."""
+    """The compiled cluster pass marks exactly what the rule written with ndimage marks."""
     rng = np.random.default_rng(seed)
     H, W = (int(x) for x in rng.integers(3, 30, size=2))
     fs = rng.uniform(0.5, 5, size=(H, W)).astype(np.float32)
@@ -169,7 +159,7 @@ def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int) ->
     invalid = np.zeros((BALL_H, BALL_W), dtype=bool)
     free[v0 : v0 + ph, u0 : u0 + pw] = NEAR
     invalid[v0 : v0 + ph, u0 : u0 + pw] = True
-    got = small_gaps(free, end, invalid, fs, NEAR, BALL_F, BALL_F, size)
+    got = np.where(small_gaps(free, end, invalid, fs, NEAR, BALL_F, BALL_F, size), end, free)
     # the ball's points (a shell and its interior), projected to their pixels
     x = rng.normal(size=(4000, 3))
     x = centre + r * x / np.linalg.norm(x, axis=1, keepdims=True) * rng.uniform(0, 1, size=(4000, 1)) ** (1 / 3)

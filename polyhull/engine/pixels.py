@@ -23,7 +23,7 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from ..typed import ArrayF32, ArrayF64
+from ..typed import ArrayF32
 
 __all__ = [
     "PixelBuffers",
@@ -323,11 +323,10 @@ def classify_frame(
 
 @nb.njit(cache=True, nogil=True)
 def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pragma: no cover - compiled
-    """(G, 3) the pixels (v, u, depth) of the 8-connected clusters of segment pixels without a
-    reading (``free < end`` and ``invalid``) that :func:`small_gaps` frees, each with the
-    depth it is freed to: one pass over the marked ``tiles`` (edge ``tile`` px; segment
-    pixels lie only in them), each cluster followed from its first pixel
-    (:func:`_gap_cluster`)."""
+    """(G, 2) the pixels (v, u) of the 8-connected clusters of segment pixels without a reading
+    (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
+    pass over the marked ``tiles`` (edge ``tile`` px; segment pixels lie only in them), each
+    cluster followed from its first pixel (:func:`_gap_cluster`)."""
     H, W = free.shape
     # the candidates first (a tight scan into an array that never grows: an array
     # reassigned in the loop costs reference counting per pixel), then their clusters
@@ -351,7 +350,7 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pra
     seen = np.zeros((H, W), dtype=np.bool_)
     stack = np.empty((64, 2), dtype=np.int64)
     comp = np.empty((64, 2), dtype=np.int64)
-    out = np.empty((64, 3), dtype=np.float64)
+    out = np.empty((64, 2), dtype=np.int64)
     n_out = 0
     for c in range(nc):
         v, u = cand[c, 0], cand[c, 1]
@@ -364,9 +363,8 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pra
 
 @nb.njit(cache=True, nogil=True)
 def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, comp, out, n_out):  # pragma: no cover - compiled
-    """Follow the cluster of pixel (v, u) (a stack); when it is walled in by the static
-    scene, append to ``out`` its pixels that :func:`small_gaps` frees, with the depth each
-    is freed to. Returns the (possibly grown) work arrays and the count in ``out``."""
+    """Follow the cluster of pixel (v, u) (a stack); append its pixels to ``out`` when it
+    is a small gap. Returns the (possibly grown) work arrays and the count in ``out``."""
     H, W = free.shape
     seen[v, u] = True
     stack[0, 0] = v
@@ -399,25 +397,18 @@ def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, 
                         ns += 1
                 elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
                     closed = False
-    if not closed:
-        return stack, comp, out, n_out
-    # a ball of diameter ``size`` between the walls fits only where the cluster and its
-    # ring span at least ``size``: at z-depths from z_fit on
-    z_fit = size / max((u1 - u0 + 3) / fx, (v1 - v0 + 3) / fy)
-    cut = np.inf if zmax < z_fit else z_fit - 0.5 * size
-    for c in range(nc):
-        pv, pu = comp[c, 0], comp[c, 1]
-        to = min(np.float64(end[pv, pu]), cut)
-        if np.float64(free[pv, pu]) < to:
-            out = push_row(out, n_out, (float(pv), float(pu), to))
+    if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
+        for c in range(nc):
+            out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
             n_out += 1
     return stack, comp, out, n_out
 
 
 def small_gaps(
     free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
-) -> ArrayF32:
-    """(H, W) the free depth after the small_gaps rule: ``free`` where it frees nothing.
+) -> np.ndarray:
+    """(H, W) the pixels without a reading whose segments are too narrow to hide an object
+    of ``size`` [m].
 
     Only pixels with no usable reading (dropouts, out of range) are candidates: a valid
     reading in front of the background is an observation (a hand seen through a gap) and
@@ -425,19 +416,16 @@ def small_gaps(
     clusters. When every pixel around a cluster reads the static scene (free to its static
     free depth), an object in the cluster's segments is walled in by free pixel
     footprints, or reaches beyond them only into the static region behind them: its
-    cross-section in the cluster's rays is under ``(extent + 2) px * z / f`` at z-depth z
-    (on each image axis). A ball of diameter ``size`` (the declared detection capability)
-    therefore lies in the cluster's rays only with its centre at z >= ``z_fit``, where that
-    width reaches ``size``, and wholly behind ``z_fit - size / 2``. So the cluster's
-    segments are freed up to that depth, and wholly (to the static depth) when even the
-    farthest segment end lies in front of ``z_fit``: a dropout patch or out-of-range
-    pixels cannot hide a ball of that size that shows no reading at all. Clusters at the
-    image border, next to pixels that see nothing, or next to the robot, a person or a
-    flying pixel, are never filled.
+    cross-section in the cluster's rays is under ``(extent + 2) px * z / f`` at the
+    cluster's farthest segment end z. When that is under ``size`` on both image axes, the
+    cluster cannot hide an object the system is declared to detect (its detection
+    capability) that shows no reading at all: a dropout patch, out-of-range pixels.
+    Clusters at the image border, next to pixels that see nothing, or next to the robot,
+    a person or a flying pixel, are never small gaps.
     """
-    out = free.copy()
-    g = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
-    out[g[:, 0].astype(np.int64), g[:, 1].astype(np.int64)] = g[:, 2]
+    out = np.zeros(free.shape, dtype=bool)
+    vu = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
+    out[vu[:, 0], vu[:, 1]] = True
     return out
 
 
@@ -451,10 +439,10 @@ def small_gap_pixels(
     fy: float,
     size: float,
     tiles: tuple[int, np.ndarray] | None = None,
-) -> ArrayF64:
-    """(G, 3) the pixels (v, u) :func:`small_gaps` frees and the depth [m] each is freed to
-    (without an image-sized array). ``tiles``: (edge [px], grid) the tiles that may hold a
-    segment pixel (:attr:`PixelClasses.tiles`), the only ones visited; None: all."""
+) -> np.ndarray:
+    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask).
+    ``tiles``: (edge [px], grid) the tiles that may hold a segment pixel
+    (:attr:`PixelClasses.tiles`), the only ones visited; None: all."""
     if tiles is None:
         tile, grid = 1 << 30, np.ones((1, 1), dtype=np.bool_)
     else:
