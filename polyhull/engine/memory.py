@@ -125,6 +125,7 @@ class ShadowMemory:
         self._tile = int(tile)
         self._tile_tol = float(tile_tol)
         self._front = bool(front)
+        self._stop: list[np.ndarray | None] = [None] * len(self._cameras)  # the front part's ends
         self._stacks: tuple[ImageStack, ImageStack] | None = None
         self._rects: list[tuple[slice, slice] | None] = [None] * len(self._cameras)
 
@@ -178,13 +179,18 @@ class ShadowMemory:
             tw = (slice(tv0, min((v1 // tile + 1) * tile, H)), slice(tu0, min((u1 // tile + 1) * tile, W)))
             self._rects[i] = tw
             if self._front:
-                # from the free depth (no lower bound of the robot's) to its padded front
-                start, stop = free[tw], np.minimum(self._free_static[i][tw], raster.front[tw])
+                # from the free depth (no lower bound of the robot's) to its padded front,
+                # written into a camera-sized image: a window of it is laid out as the
+                # other part's arguments are (one compiled signature)
+                if self._stop[i] is None:
+                    self._stop[i] = np.empty(cam.shape, dtype=np.float32)
+                stop = self._stop[i][tw]  # type: ignore[index]
+                np.minimum(self._free_static[i][tw], raster.front[tw], out=stop)
+                start = free[tw]
             else:
                 start, stop = raster.back[tw], self._free_static[i][tw]
-            c = np.ascontiguousarray  # one layout for both parts (one compiled signature)
             f, e = memory_segments(
-                c(raster.covered[tw]), c(start), c(free[tw]), c(stop),
+                raster.covered[tw], start, free[tw], stop,
                 rects - np.array([tu0, tu0, tv0, tv0]), zr, mem_free.image(i)[tw], mem_end.image(i)[tw], tile,
             )
             tiles = tile_segments(f, e, raster.covered[tw], tile, raster.front[tw], raster.back[tw], self._tile_tol)
