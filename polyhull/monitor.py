@@ -924,7 +924,9 @@ class Monitor:
         # which are the static noise layer under them, not an observation)
         observed = allp.vertices[result.keep]
         self._prev_lo, self._prev_hi = vertex_bounds(observed)
-        seeds = seen_parts(allp.boxes[result.seeds], free_imgs, self._stack, self._binary)
+        seeds = seen_parts(
+            allp.boxes[result.seeds], free_imgs, self._stack, self._binary, [r.invalid for r in results]
+        )
         self._seed_lo, self._seed_hi = vertex_bounds(seeds)
         self._prev_stamp = t
         self._prev_distance = float(dist.distance)
@@ -1042,7 +1044,7 @@ class Monitor:
         if len(tiles):
             tiles = np.column_stack([np.full(len(tiles), float(i)), tiles])
         return _CameraPixels(
-            depth is not None, tiles, gaps, cls.unexplained, cls.invalid_share, cls.far_side_share
+            depth is not None, tiles, gaps, cls.unexplained, cls.invalid_share, cls.far_side_share, cls.invalid
         )
 
     def _static_contains(self, points: ArrayF64) -> np.ndarray:
@@ -1151,6 +1153,7 @@ class _CameraPixels(NamedTuple):
     unexplained: int
     invalid_share: float
     far_side_share: float
+    invalid: np.ndarray | None = None  # (H, W) pixels without a usable reading (this cycle's buffer)
 
 
 def _robot_body(padded_world: list[ArrayF64]) -> m3.Manifold:

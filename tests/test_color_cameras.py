@@ -187,7 +187,8 @@ def test_the_memory_holds_what_m_hides_in_front_of_the_robot(color: tuple[Monito
 def test_a_colour_cameras_pieces_seed_the_memory_whole() -> None:
     """A colour camera measures no surface (a changed pixel frees nothing): the memory's
     seeds are its pieces whole, not their first ``SEED_DEPTH`` behind ``near``, which held
-    next to nothing of a person seen only by colour cameras."""
+    next to nothing of a person seen only by colour cameras; but a dropout patch's pieces
+    (no reading at all) seed nothing, as a depth camera's."""
     cell = load_cell(default_cell_path())
     stack = CameraStack.of(cell.cameras)
     H, W = cell.cameras[0].shape
@@ -195,5 +196,13 @@ def test_a_colour_cameras_pieces_seed_the_memory_whole() -> None:
     boxes = np.array([[0, 200, 207, 100, 107, 2.0, 4.5]])
     frees = [free] + [None] * (len(cell.cameras) - 1)
     assert len(seen_parts(boxes, frees, stack)) == 0  # a depth camera: beyond near + SEED_DEPTH
-    whole = seen_parts(boxes, frees, stack, binary=[True] + [False] * (len(cell.cameras) - 1))
+    binary = [True] + [False] * (len(cell.cameras) - 1)
+    whole = seen_parts(boxes, frees, stack, binary)
     np.testing.assert_allclose(whole, piece_vertices(boxes, stack))
+    # a piece of pixels without any reading (a dropout patch) saw nothing
+    invalid = np.zeros((H, W), dtype=bool)
+    invalid[100:108, 200:208] = True
+    invalids = [invalid] + [None] * (len(cell.cameras) - 1)
+    assert len(seen_parts(boxes, frees, stack, binary, invalids)) == 0
+    invalid[103, 204] = False  # one pixel with a changed reading: the piece is seen
+    np.testing.assert_allclose(seen_parts(boxes, frees, stack, binary, invalids), whole)

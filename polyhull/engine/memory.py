@@ -53,14 +53,21 @@ memory's seeds are the seen parts of the kept pieces, not the shadow behind them
 
 
 def seen_parts(
-    boxes: ArrayF64, free_imgs: Sequence[np.ndarray | None], stack: CameraStack, binary: Sequence[bool] = ()
+    boxes: ArrayF64,
+    free_imgs: Sequence[np.ndarray | None],
+    stack: CameraStack,
+    binary: Sequence[bool] = (),
+    invalid_imgs: Sequence[np.ndarray | None] = (),
 ) -> ArrayF64:
     """(S, 8, 3) the parts of pieces (boxes (N, 7)) within ``SEED_DEPTH`` behind the
     surface their pixels measured: the depth range ``[max(z0, f_min), min(z1, f_max +
     SEED_DEPTH)]`` with ``f`` the camera's free depth over the piece's pixels. Pieces of a
-    camera without a frame, or entirely deeper, give nothing. A camera marked in
-    ``binary`` (a colour camera) measures no surface: a changed pixel frees nothing, and
-    what it saw may lie anywhere along its piece, which is kept whole."""
+    camera without a frame, or entirely deeper, give nothing.
+
+    A camera marked in ``binary`` (a colour camera) measures no surface: a changed pixel
+    frees nothing, and what it saw may lie anywhere along its piece, which is kept whole
+    when some pixel of it has a reading (``invalid_imgs``: the pixels without one); a piece
+    of pixels without any reading (a dropout patch) saw nothing, as for a depth camera."""
     out = []
     cams = boxes[:, 0].astype(np.int64)
     for c in np.unique(cams):
@@ -69,6 +76,10 @@ def seen_parts(
             continue
         b = boxes[cams == c].copy()
         if int(c) < len(binary) and binary[int(c)]:
+            invalid = invalid_imgs[int(c)] if int(c) < len(invalid_imgs) else None
+            if invalid is not None:
+                least, _ = window_range(invalid.view(np.uint8), b[:, 1:5].astype(np.int64))
+                b = b[least == 0]
             out.append(b)
             continue
         f_lo, f_hi = window_range(free, b[:, 1:5].astype(np.int64))
