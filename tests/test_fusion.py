@@ -5,7 +5,7 @@ from __future__ import annotations
 import manifold3d as m3
 import numpy as np
 import pytest
-from conftest import exactly_possibly_occupied, manifold_contains
+from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 
@@ -135,7 +135,7 @@ def test_region_point_oracle_and_people_inside_region(
         b0, b1 = o.mesh.bounds
         solids |= np.all((points >= b0) & (points <= b1), axis=1)
     in_r2 = small_monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)
-    excused = small_monitor.in_robot_shadow(points) | solids
+    excused = in_robot_occlusion(small_monitor, points) | solids
     misses = occupied & ~in_r2 & ~excused
     assert not misses.any(), f"{misses.sum()} exactly occupied points outside R2: {points[misses][:5]}"
     # People inside R3 unless in the robot's declared shadow or inside a solid obstacle.
@@ -143,7 +143,7 @@ def test_region_point_oracle_and_people_inside_region(
     body = body[small_cell.zone.contains(body)]  # R lies in Z; an arm may reach out of it
     kept = v._geometry.kept
     in_r3 = manifold_contains(small_monitor.static.region, body) | points_in_hexahedra(body, kept)
-    ok = in_r3 | small_monitor.in_robot_shadow(body)
+    ok = in_r3 | in_robot_occlusion(small_monitor, body)
     for o in small_cell.solid_obstacles:
         b0, b1 = o.mesh.bounds
         ok |= np.all((body >= b0) & (body <= b1), axis=1)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import exactly_possibly_occupied, manifold_contains
+from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
@@ -83,12 +83,12 @@ def test_random_scenes_have_no_misses_and_keep_the_person(
     occupied = exactly_possibly_occupied(monitor, frames, points)
     assert occupied.sum() > 100  # the oracle tests something
     in_r2 = monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
-    misses = occupied & ~in_r2 & ~monitor.in_robot_shadow(points) & ~_solid(cell, points)
+    misses = occupied & ~in_r2 & ~in_robot_occlusion(monitor, points) & ~_solid(cell, points)
     assert not misses.any(), f"{misses.sum()} exactly occupied points outside R2: {points[misses][:5]}"
     body = sample_points_inside(person, 200, seed=seed)
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} person points outside R3: {body[~ok][:5]}"
 
 
@@ -146,7 +146,7 @@ def test_people_beside_an_obstacle_stay_in_r3(
     body = np.concatenate(bodies)
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
 
 
@@ -196,5 +196,5 @@ def test_people_walking_up_to_the_robot_stay_in_r3(
         body = sample_points_inside(person, 300, seed=seed + c)
         body = body[cell.zone.contains(body)]
         in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-        ok = in_r3 | monitor.in_robot_shadow(body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+        ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
         assert ok.all(), f"cycle {c}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"

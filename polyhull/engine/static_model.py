@@ -99,26 +99,6 @@ def _down32(x: ArrayF64) -> ArrayF32:
         return np.where(y > x, np.nextafter(y, np.float32(-np.inf)), y).astype(np.float32)
 
 
-def _bends(B: ArrayF64) -> ArrayF64:
-    """(H, W) how far [m] the reference depth ``B`` leaves one plane at each pixel: the
-    largest second difference of the inverse depth ``1 / B`` (affine in the pixel
-    coordinates on a plane) over the pixel and its neighbours along the rows, the columns
-    and both diagonals, in depth units (times ``B^2``). Zero on a slanted floor however
-    steep, large where the pixel or a neighbour lies across an occluding edge or a crease;
-    +inf where a neighbour sees nothing."""
-    w = np.pad(1.0 / B, 1, mode="reflect", reflect_type="odd")  # extended as a plane
-    c = w[1:-1, 1:-1]
-    out = np.zeros_like(c)
-    H, W = c.shape
-    for dv, du in ((0, 1), (1, 0), (1, 1), (1, -1)):
-        a = w[1 - dv : 1 - dv + H, 1 - du : 1 - du + W]
-        b = w[1 + dv : 1 + dv + H, 1 + du : 1 + du + W]
-        out = np.maximum(out, np.abs(a - 2.0 * c + b))
-    bend = out * B * B
-    # the same test from each neighbour's side: a pixel beside a bend is at the edge too
-    return np.asarray(ndimage.maximum_filter(np.where(np.isfinite(bend), bend, np.inf), 3, mode="nearest"))
-
-
 def _up32(x: ArrayF64) -> ArrayF32:
     """float32 copy rounded toward +inf (never below ``x``)."""
     y = x.astype(np.float32)
@@ -179,14 +159,13 @@ class StaticCamera:
         # Beyond the range, or within the noise of its limit: the reading may be invalid.
         unsure = ~np.isfinite(B) | (B + width * camera.tau(B_far) > camera.far)
         with np.errstate(invalid="ignore"):
-            if camera.kind == "color":
-                edge = _bends(B_far) > (U - T)
-            else:
-                jump = ndimage.maximum_filter(B_far, 3, mode="nearest") - ndimage.minimum_filter(
-                    B_far, 3, mode="nearest"
-                )
-                edge = jump > (U - T)
-        T_spec = T
+            jump = ndimage.maximum_filter(B_far, 3, mode="nearest") - ndimage.minimum_filter(
+                B_far, 3, mode="nearest"
+            )
+            # A depth camera's static edges take their 3 x 3 neighbourhood's band (flying
+            # pixels); a colour camera has none, and a widened colour band would admit
+            # readings the SPEC calls changed, so it keeps its own band everywhere.
+            edge = (jump > (U - T)) & (camera.kind != "color")
         T = np.where(edge, ndimage.minimum_filter(T, 3, mode="nearest"), T)
         U = np.where(edge, ndimage.maximum_filter(U, 3, mode="nearest"), U)
         with np.errstate(invalid="ignore"):
@@ -198,9 +177,6 @@ class StaticCamera:
         no_free = ndimage.maximum_filter(unsure, 3, mode="nearest")
         if static_invalid is not None:
             no_free |= static_invalid
-        if camera.kind == "color":
-            # A widened band admits readings the SPEC calls changed (D < T): free nothing.
-            no_free |= T < T_spec
         f_s = np.where(no_free, camera.near, np.clip(f_s, camera.near, camera.far))
         w = np.where(f_s > camera.near, -1.0 / f_s, -1.0 / camera.near)
         arrays = {
@@ -950,7 +926,7 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
 
-_CACHE_FORMAT = b"polyhull-static-model-9"
+_CACHE_FORMAT = b"polyhull-static-model-10"
 
 
 def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
