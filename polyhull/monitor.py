@@ -470,27 +470,6 @@ class Monitor:
         """Every camera's static data (:class:`polyhull.engine.static_model.StaticCamera`)."""
         return self.static.cameras
 
-    def in_robot_shadow(self, points: ArrayF64) -> np.ndarray:
-        """(P,) whether points lie in the padded robot's declared shadow of the last cycle:
-        for some camera, on a robot-covered pixel at or beyond its shadow start. This is
-        the tolerance the engine removes as the robot occlusion (the padding and the depth
-        tolerance band before it)."""
-        out = np.zeros(len(points), dtype=bool)
-        if self.last_images is None:
-            return out
-        for cam in self.cell.cameras:
-            r = self.last_images.raster.get(cam.name)
-            if r is None:
-                continue
-            uv, z = cam.project(points)
-            H, W = cam.shape
-            with np.errstate(invalid="ignore"):
-                ok = (z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < W - 0.5) & (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
-            ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(np.int64), 0, W - 1)
-            vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(np.int64), 0, H - 1)
-            out |= ok & r.covered[vi, ui] & (z >= r.shadow_start[vi, ui])
-        return out
-
     def camera_regions(self, frames: Mapping[str, DepthFrame]) -> dict[str, m3.Manifold]:
         """C(i) = Z minus F(i) for every camera with a frame of the right shape, built from the
         engine's free depth of ``frames`` (inspection, not the hot path; a camera without a

@@ -153,8 +153,8 @@ def _static_counts(monitor: Monitor, points: np.ndarray, robot: bool) -> np.ndar
 def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie in the padded robot's occlusion M of the monitor's last cycle
     by its definition (SPEC section 2, ``M = F_static minus F_static+robot``, k of n): at
-    least k cameras free them in the empty cell, fewer with the robot. Stricter than
-    :meth:`Monitor.in_robot_shadow` (some camera's shadow), which excuses a point one
-    camera cannot see though another sees it."""
+    least k cameras free them in the empty cell, fewer with the robot. Stricter than "in
+    some camera's robot shadow", which excuses a point one camera cannot see though another
+    sees it."""
     k = monitor.cell.reconstruction.k_of_n
     return (_static_counts(monitor, points, False) >= k) & (_static_counts(monitor, points, True) < k)

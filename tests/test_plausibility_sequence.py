@@ -15,7 +15,7 @@ import manifold3d as m3
 import numpy as np
 import pytest
 import trimesh
-from conftest import exactly_possibly_occupied, manifold_contains
+from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
 
 from polyhull.cell import Cell
 from polyhull.distance import points_in_hexahedra
@@ -105,7 +105,7 @@ def _check_cycle(
     in_r3[rest] = manifold_contains(monitor.static.region, pts[rest])
     lost = pts[~in_r3 & exactly_possibly_occupied(monitor, frames, pts)]
     if len(lost):
-        in_m = monitor.in_robot_shadow(lost)
+        in_m = in_robot_occlusion(monitor, lost)
         tally.excused_in_m += int(in_m.sum())
         lost = lost[~in_m]
     tally.person_points += len(pts)
