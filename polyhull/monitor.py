@@ -372,20 +372,16 @@ class Monitor:
         self._margin = self._padding * math.sqrt(3.0)
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
-        self._shadow = ShadowMemory(
-            cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
-            self._tile_tol,
-        )
+        def shadow_memory(front: bool) -> ShadowMemory:
+            return ShadowMemory(
+                cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
+                self._tile_tol, front=front,
+            )
+
+        self._shadow = shadow_memory(False)
         self._binary = tuple(c.kind == "color" for c in cell.cameras)
         # a colour camera's robot occlusion is in front of the robot too
-        self._shadow_front = (
-            ShadowMemory(
-                cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
-                self._tile_tol, front=True,
-            )
-            if any(c.kind == "color" for c in cell.cameras)
-            else None
-        )
+        self._shadow_front = shadow_memory(True) if any(self._binary) else None
         # a cycle's images (held by its verdict and last_images) and its rasters (held by
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
         # one pair per camera, are left reset after each use

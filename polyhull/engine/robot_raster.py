@@ -505,9 +505,9 @@ def rasterize_robot(
 @nb.njit(cache=True, nogil=True)
 def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, binary, covered, front, back, start, out):  # pragma: no cover - compiled
     """float32 images, rounded outward, and the shadow start ``front - max(0, 2 tau - pad)``
-    (``near`` for a ``binary``-depth camera: its whole ray is hidden), over the rectangle ``[u0, u1] x [v0, v1]``; the depth buffers are reset there. Grows
-    ``out`` (u0, u1, v0, v1) to the covered pixels' rectangle; returns their least back
-    depth.
+    (``near`` for a ``binary``-depth camera: its whole ray is hidden), over the rectangle
+    ``[u0, u1] x [v0, v1]``; the depth buffers are reset there. Grows ``out`` (u0, u1, v0,
+    v1) to the covered pixels' rectangle; returns their least back depth.
 
     A pixel is covered when both a front and a back face wrote it: a ray through its grown
     square that meets a piece enters through a front face and leaves through a back face,
