@@ -386,7 +386,7 @@ class Monitor:
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
         # one pair per camera, are left reset after each use
         self._static_classes = [
-            prepare_static(s.lower, s.upper, s.free_static, c.near)
+            prepare_static(s.lower, s.upper, s.free_static, c.near, s.edge)
             for c, s in zip(cell.cameras, self.static.cameras, strict=True)
         ]
         self._image_pool: _Pool[_CycleBuffers] = _Pool(
@@ -480,7 +480,7 @@ class Monitor:
                 frame.depth, s.reference, s.lower, s.upper, s.free_static,
                 np.full(cam.shape, np.inf, dtype=np.float32),
                 near=cam.near, far=cam.far, tau_a=s.tau_a, tau_min=cam.tolerance_min,
-                is_color=cam.kind == "color",
+                is_color=cam.kind == "color", edge=s.edge,
             )
             free = free_region_from_depth(cam, cls.free.astype(np.float64), self.cell.reconstruction.block)
             out[cam.name] = check_manifold(self._zone - free, f"camera '{cam.name}' region C(i)")

@@ -109,7 +109,7 @@ def _classify(static: StaticCamera, D: np.ndarray, shadow: np.ndarray | None = N
     return classify_frame(
         D, static.reference, static.lower, static.upper, static.free_static, shadow,
         near=cam.near, far=cam.far, tau_a=static.tau_a, tau_min=cam.tolerance_min,
-        is_color=cam.kind == "color",
+        is_color=cam.kind == "color", edge=static.edge,
     )
 
 
@@ -137,7 +137,12 @@ def test_engine_free_depth_never_above_exact(seed: int, kind: str, special: list
     cls = _classify(static, D)
     exact = free_depth(cam, D.astype(np.float64), B)
     assert np.all(cls.free <= exact + 1e-6), float(np.max(cls.free - exact))
-    assert np.all(cls.free <= static.free_static)
+    # clamped to the static free depth, except a static edge pixel reading in its band,
+    # which frees its own exact free depth (at least the static one)
+    in_band = (D >= static.lower) & (D <= static.upper) & (D >= cam.near) & (D <= cam.far)
+    own = static.edge & in_band
+    assert np.all((cls.free <= static.free_static) | own)
+    assert np.all(cls.free[own] >= static.free_static[own])
     # every pixel either frees its static free depth or has a segment up to it
     seg = cls.free < cls.end
     assert np.all(seg | (cls.free >= static.free_static))
@@ -338,3 +343,37 @@ def test_packed_band_says_static_only_inside_the_band(T: float, U: float, d: flo
         surely = bool(dm >= tq and (dm <= uq or uq == np.float32(65535.0)))
         exact = bool(np.float32(d) >= np.float32(T) and np.float32(d) <= np.float32(U))
     assert not surely or exact
+
+
+def test_a_static_edge_pixel_frees_what_it_reads() -> None:
+    """At a static depth edge the band is the neighbourhood's (flying pixels), so the static
+    free depth is the nearer surface's; a reading in that band frees its own exact free
+    depth: the farther surface's reading frees up to it, a flying pixel between the two
+    frees up to itself, and neither is a change."""
+    cam = make_camera(width=40, height=30)
+    B = _reference(cam)
+    static = StaticCamera.build(cam, B, 2)
+    edge = static.edge
+    # the object's outline (0.8 m in front of the background) and nothing else
+    assert edge.any() and not edge[20:, :].any()
+    D = np.where(np.isfinite(B) & (B <= cam.far), B, 0.0).astype(np.float32)
+    cls = _classify(static, D)
+    exact = free_depth(cam, D.astype(np.float64), B)
+    assert cls.unexplained == 0
+    np.testing.assert_allclose(cls.free[edge], exact[edge], rtol=0, atol=1e-5)
+    far_side = edge & (B > static.reference.min() + 0.5)
+    assert far_side.any() and np.all(cls.free[far_side] > static.free_static[far_side] + 0.5)
+    # a flying pixel halfway between the object and the background behind it
+    v, u = np.argwhere(far_side)[0]
+    D2 = D.copy()
+    D2[v, u] = B[v, u] - 0.4
+    cls2 = _classify(static, D2)
+    assert cls2.unexplained == 0
+    assert static.free_static[v, u] < cls2.free[v, u] <= free_depth(cam, D2.astype(np.float64), B)[v, u]
+    # without the edge pixels, the static free depth (the wedge behind the edge)
+    plain = classify_frame(
+        D, static.reference, static.lower, static.upper, static.free_static,
+        np.full(cam.shape, np.inf, dtype=np.float32), near=cam.near, far=cam.far,
+        tau_a=static.tau_a, tau_min=cam.tolerance_min, is_color=False,
+    )
+    np.testing.assert_array_equal(plain.free[edge], static.free_static[edge])

@@ -4,7 +4,12 @@ Per pixel p of camera i (``f_s`` the static free depth, ``[T, U]`` the static ba
 the depth where the padded robot's shadow starts, +inf where the robot does not cover p):
 
 - **static**: the measurement lies in the band (or the pixel frees nothing even in the
-  empty cell): the free depth is ``f_s``;
+  empty cell): the free depth is ``f_s``. At a depth camera's static edge the band is the
+  3 x 3 neighbourhood's (flying pixels), so ``f_s`` is the nearer surface's, up to a metre
+  short of the farther one the pixel usually reads: there a reading in the band frees its
+  own exact free depth (at least ``f_s``, the band's least; about 1,000 pixels a camera,
+  in the row chunks classified every cycle), so the other cameras' pieces are carved with
+  what the pixel saw, not with the static model's wedge behind the edge;
 - otherwise the exact free depth of SPEC section 2 is computed, clamped to ``f_s``:
   ``f(p) = min(f_exact(p), f_s(p))`` (never more than the static model allows);
 - the pixel's occluded **segment** runs from ``f(p)`` back to ``end(p) = min(f_s(p), S(p))``;
@@ -84,6 +89,10 @@ class StaticClasses(NamedTuple):
             reading with ``Tq <= 1000 d <= Uq`` is in the band for sure; the others are
             tested against T and U. One image of half the size instead of two: the test
             of every pixel is bound by memory traffic.
+        edge: (H, W) static edge pixels (:attr:`polyhull.engine.static_model.StaticCamera.edge`):
+            a reading in their band frees its own exact free depth, not ``free0``.
+        edge_chunks: (H, ceil(W / CHUNK)) the row chunks holding one (classified pixel
+            by pixel every cycle).
     """
 
     free0: ArrayF32
@@ -91,10 +100,15 @@ class StaticClasses(NamedTuple):
     upper: ArrayF32
     seen: int
     band: np.ndarray
+    edge: np.ndarray
+    edge_chunks: np.ndarray
 
 
-def prepare_static(lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near: float) -> StaticClasses:
-    """The frame-independent part of :func:`classify_frame` for one camera."""
+def prepare_static(
+    lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near: float, edge: np.ndarray | None = None
+) -> StaticClasses:
+    """The frame-independent part of :func:`classify_frame` for one camera (``edge``: its
+    static edge pixels, none when None)."""
     fs = np.asarray(free_static, dtype=np.float32)
     inside = fs.astype(np.float64) <= float(near)
     near32 = np.float32(near)
@@ -103,7 +117,14 @@ def prepare_static(lower: ArrayF32, upper: ArrayF32, free_static: ArrayF32, near
     free0 = np.where(inside, near32, fs).astype(np.float32)
     lo = np.where(inside, -np.inf, lower).astype(np.float32)
     hi = np.where(inside, np.inf, upper).astype(np.float32)
-    return StaticClasses(free0, lo, hi, int((~inside).sum()), _packed_band(lo, hi))
+    H, W = fs.shape
+    e = np.zeros((H, W), dtype=np.bool_) if edge is None else np.asarray(edge, dtype=np.bool_) & ~inside
+    chunks = np.zeros((H, -(-W // CHUNK) * CHUNK), dtype=np.bool_)
+    chunks[:, :W] = e
+    return StaticClasses(
+        free0, lo, hi, int((~inside).sum()), _packed_band(lo, hi), np.ascontiguousarray(e),
+        np.ascontiguousarray(chunks.reshape(H, -1, CHUNK).any(axis=2)),
+    )
 
 
 def _packed_band(lower: ArrayF32, upper: ArrayF32) -> np.ndarray:
@@ -168,14 +189,16 @@ class PixelBuffers:
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, band, B, T, U, fs, free0, shadow, rect, prev_rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, prev_rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
     only the row chunks holding a reading not surely in the band (the packed ``band`` of
     :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
     near``, except NaN) are classified pixel by pixel, and written whole; a chunk the last
     classification wrote and this one does not is put back to the static images. A static
     pixel frees ``free0`` and its segment (to ``f_s``, or to the robot's shadow start) is
-    empty. ``dirty`` and ``changed`` are updated (see :class:`PixelBuffers`)."""
+    empty; a static edge pixel (``edge``, in the chunks of ``edge_chunks``, classified
+    every cycle) frees its reading's exact free depth, at least ``free0``. ``dirty`` and
+    ``changed`` are updated (see :class:`PixelBuffers`)."""
     H, W = depth.shape
     out_tiles[:, :] = False
     changed[:, :] = False
@@ -193,7 +216,7 @@ def _classify(depth, band, B, T, U, fs, free0, shadow, rect, prev_rect, near, fa
         for ci in range(dirty.shape[1]):
             c0 = ci * CHUNK
             c1 = min(c0 + CHUNK, W)
-            hit = False
+            hit = edge_chunks[v, ci]
             for u in range(c0, c1):
                 dm = np.float32(1000.0) * depth[v, u]
                 p = band[v, u]
@@ -214,7 +237,20 @@ def _classify(depth, band, B, T, U, fs, free0, shadow, rect, prev_rect, near, fa
             for u in range(c0, c1):
                 d = np.float64(depth[v, u])
                 if d >= T[v, u] and d <= U[v, u]:
-                    if was:
+                    if edge[v, u] and d >= near and d <= far:
+                        # a static edge: the band is the neighbourhood's (flying pixels), so
+                        # f_s is the nearer surface's; this reading's exact free depth is at
+                        # least that (f_s is its least over the band), rounded toward the camera
+                        t = max(a * d * d, tmin)
+                        f = min(d, min(np.float64(B[v, u]), far)) - t
+                        fr = np.float32(f)
+                        if fr > f:
+                            fr = np.nextafter(fr, np.float32(-np.inf))
+                        fr = max(fr, free0[v, u])
+                        out_free[v, u] = fr
+                        out_invalid[v, u] = False
+                        now |= fr != free0[v, u]
+                    elif was:
                         out_free[v, u] = free0[v, u]
                         out_invalid[v, u] = False
                     continue
@@ -279,6 +315,7 @@ def classify_frame(
     shadow_rect: tuple[int, int, int, int] | None = None,
     static: StaticClasses | None = None,
     buffers: PixelBuffers | None = None,
+    edge: np.ndarray | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -301,10 +338,12 @@ def classify_frame(
             ``near`` (made here when None; a monitor makes it once).
         buffers: The camera's :class:`PixelBuffers` (with this ``static`` and
             ``free_static``), written and returned in the classes; new ones when None.
+        edge: (H, W) the static edge pixels (used when ``static`` is None): a reading in
+            their band frees its exact free depth.
     """
     H, W = free_static.shape
     if static is None:
-        static = prepare_static(lower, upper, free_static, near)
+        static = prepare_static(lower, upper, free_static, near, edge)
     if buffers is None:
         buffers = PixelBuffers(static, free_static)
     tile = int(tile)
@@ -312,7 +351,8 @@ def classify_frame(
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     b = buffers
     n_seg, n_invalid, n_far = _classify(
-        depth, static.band, reference, static.lower, static.upper, free_static, static.free0, shadow_start, rect,
+        depth, static.band, reference, static.lower, static.upper, free_static, static.free0, static.edge,
+        static.edge_chunks, shadow_start, rect,
         b.rect, float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )

@@ -120,6 +120,10 @@ class StaticCamera:
         block: Block side [px] of the static surface.
         surface: (Hb + 1, Wb + 1) corner values ``w = -1/z`` of the conservative surface of
             ``free_static`` over ``block`` px blocks.
+        edge: (H, W) the pixels whose band is their neighbourhood's (a depth camera's
+            static edge) and that free something: ``free_static`` is the nearer surface's
+            there, and a reading's own exact free depth frees more (the classification
+            computes it, :func:`polyhull.engine.pixels.classify_frame`).
     """
 
     camera: Camera
@@ -129,6 +133,7 @@ class StaticCamera:
     free_static: ArrayF32
     block: int
     surface: ArrayF64
+    edge: np.ndarray
 
     @classmethod
     def build(
@@ -166,6 +171,7 @@ class StaticCamera:
             # pixels); a colour camera has none, and a widened colour band would admit
             # readings the SPEC calls changed, so it keeps its own band everywhere.
             edge = (jump > (U - T)) & (camera.kind != "color")
+        T0, U0 = T, U
         T = np.where(edge, ndimage.minimum_filter(T, 3, mode="nearest"), T)
         U = np.where(edge, ndimage.maximum_filter(U, 3, mode="nearest"), U)
         with np.errstate(invalid="ignore"):
@@ -178,6 +184,9 @@ class StaticCamera:
         if static_invalid is not None:
             no_free |= static_invalid
         f_s = np.where(no_free, camera.near, np.clip(f_s, camera.near, camera.far))
+        widened = (T < T0) | (U > U0)
+        edge_px = np.ascontiguousarray(widened & ~no_free & (f_s > camera.near))
+        edge_px.setflags(write=False)
         w = np.where(f_s > camera.near, -1.0 / f_s, -1.0 / camera.near)
         arrays = {
             "reference": _down32(B),
@@ -189,7 +198,7 @@ class StaticCamera:
             a.setflags(write=False)
         surface = conservative_surface(w, block)
         surface.setflags(write=False)
-        return cls(camera=camera, block=int(block), surface=surface, **arrays)
+        return cls(camera=camera, block=int(block), surface=surface, edge=edge_px, **arrays)
 
     @property
     def tau_a(self) -> float:
