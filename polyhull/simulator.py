@@ -16,6 +16,11 @@ not change the random draws of the others:
 4. out of range: depth outside ``[near, far]`` (and no return, +inf) reported as 0, as
    real drivers do;
 5. quantisation to uint16 millimetres.
+
+Flying pixels and dropouts are a depth sensor's (mixed returns at an edge, no return from
+a dark or specular patch): a colour camera, whose frame only says where the image
+changed, gets neither. Its noise is its declared ``noise`` (0 in the colour fixture) and
+its range is the part of the view it is trusted in, so those two apply as declared.
 """
 
 from __future__ import annotations
@@ -60,14 +65,14 @@ class SensorEffects:
     Attributes:
         noise: Add Gaussian depth noise with standard deviation ``camera.noise * z**2``
             [m] at z-depth z [m] (``camera.noise`` is the std at 1 m).
-        dropout: Share in [0, 1] of pixels set to 0 (unknown) at random.
+        dropout: Share in [0, 1] of pixels set to 0 (unknown) at random (depth cameras).
         dropout_cluster: Side [px] of the square patches in which pixels drop out. Real
             depth cameras lose pixels in patches (dark or specular spots, multipath), not
             as isolated pixels; 1 gives independent pixels (salt and pepper).
         out_of_range: Report depth outside the camera range ``[near, far]`` [m], and no
             return (+inf), as 0 like real drivers; when False they are kept (+inf stays
             +inf, which REP 117 reads as "no return").
-        flying_pixels: Time-of-flight mixed pixels: where the 3 x 3 neighbourhood spans a
+        flying_pixels: Time-of-flight mixed pixels (depth cameras): where the 3 x 3 neighbourhood spans a
             depth jump above ``flying_jump``, a pixel is, with probability
             ``flying_share``, replaced by a uniformly random depth between the
             neighbourhood's minimum and maximum (finite values only).
@@ -141,7 +146,8 @@ def apply_sensor_effects(
 
     Args:
         depth: (H, W) exact z-depth [m], +inf where nothing is hit.
-        camera: The camera (noise model and range).
+        camera: The camera (noise model, range, and kind: a colour camera gets no
+            flying pixels and no dropouts).
         effects: Which effects to apply.
         seed: Non-negative seed; with ``camera_index`` it selects the random streams.
         camera_index: Index of the camera in its cell (independent streams per camera).
@@ -154,7 +160,8 @@ def apply_sensor_effects(
     out = np.array(depth, dtype=np.float32)
     if out.ndim != 2:
         raise PolyhullError(f"depth of camera '{camera.name}' must be (H, W), got {out.shape}")
-    if effects.flying_pixels:
+    depth_sensor = camera.kind != "color"
+    if effects.flying_pixels and depth_sensor:
         rng = _stream(int(seed), camera_index, _STREAM_FLYING)
         lo, hi = _neighbourhood_min_max(out)
         with np.errstate(invalid="ignore"):
@@ -169,7 +176,7 @@ def apply_sensor_effects(
         standard = rng.standard_normal(out.shape, dtype=np.float32)
         finite = np.isfinite(out)  # +inf (no return) stays +inf
         out[finite] += standard[finite] * np.float32(camera.noise) * out[finite] ** 2
-    if effects.dropout > 0.0:
+    if effects.dropout > 0.0 and depth_sensor:
         rng = _stream(int(seed), camera_index, _STREAM_DROPOUT)
         k = effects.dropout_cluster
         if k == 1:

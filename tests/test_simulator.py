@@ -319,3 +319,16 @@ def test_recorded_fixtures_replay_from_the_manifest(name):
     exact = sim.render_exact(entry["q"], targets=persons)
     empty = sim.render_exact(entry["q"])
     assert any(np.sum(exact[c.name] < empty[c.name] - 0.05) > 100 for c in cell.cameras)
+
+
+def test_a_colour_camera_gets_no_flying_pixels_and_no_dropouts():
+    """Flying pixels and dropouts are a depth sensor's: a colour camera's frame (where the
+    image changed) gets neither; a depth camera at the same place gets both."""
+    heavy = SensorEffects(noise=False, dropout=0.05, flying_share=1.0, out_of_range=False)
+    for kind, expect in (("color", False), ("depth", True)):
+        cams = (camera("c", (0.0, 0.0, 3.0), kind=kind),)
+        sim = simulator(make_cell(cameras=cams))
+        exact = sim.render_exact()["c"]
+        depth = sim.render(effects=heavy, seed=2)["c"].depth
+        changed = ~((depth == exact) | (np.isinf(depth) & np.isinf(exact)))
+        assert changed.any() == expect, kind
