@@ -72,9 +72,9 @@ class SensorEffects:
         out_of_range: Report depth outside the camera range ``[near, far]`` [m], and no
             return (+inf), as 0 like real drivers; when False they are kept (+inf stays
             +inf, which REP 117 reads as "no return").
-        flying_pixels: Time-of-flight mixed pixels (depth cameras): where the 3 x 3 neighbourhood spans a
-            depth jump above ``flying_jump``, a pixel is, with probability
-            ``flying_share``, replaced by a uniformly random depth between the
+        flying_pixels: Time-of-flight mixed pixels (depth cameras): where the 3 x 3
+            neighbourhood spans a depth jump above ``flying_jump``, a pixel is, with
+            probability ``flying_share``, replaced by a uniformly random depth between the
             neighbourhood's minimum and maximum (finite values only).
         uint16: Quantise to whole millimetres and return uint16 images, as a uint16
             driver does (0 = unknown; depths beyond 65.535 m become 0).
