@@ -188,6 +188,22 @@ class PixelBuffers:
         self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _exact_free(d, b, a, tmin):  # pragma: no cover - compiled
+    """SPEC section 2's free depth ``min(D, B) - tau(D)`` of a usable reading ``d`` [m]
+    (``b``: the reference depth, capped at the range)."""
+    return min(d, b) - max(a * d * d, tmin)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _toward_camera(x):  # pragma: no cover - compiled
+    """``x`` as a float32 rounded down (toward the camera: a free depth never grows)."""
+    f = np.float32(x)
+    if f > x:
+        f = np.nextafter(f, np.float32(-np.inf))
+    return f
+
+
 @nb.njit(cache=True, nogil=True)
 def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, prev_rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
@@ -241,12 +257,7 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
                         # a static edge: the band is the neighbourhood's (flying pixels), so
                         # f_s is the nearer surface's; this reading's exact free depth is at
                         # least that (f_s is its least over the band), rounded toward the camera
-                        t = max(a * d * d, tmin)
-                        f = min(d, min(np.float64(B[v, u]), far)) - t
-                        fr = np.float32(f)
-                        if fr > f:
-                            fr = np.nextafter(fr, np.float32(-np.inf))
-                        fr = max(fr, free0[v, u])
+                        fr = max(_toward_camera(_exact_free(d, min(np.float64(B[v, u]), far), a, tmin)), free0[v, u])
                         out_free[v, u] = fr
                         out_invalid[v, u] = False
                         now |= fr != free0[v, u]
@@ -275,16 +286,13 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
                     elif is_color:
                         f = near if de < T[v, u] else f_s
                     else:
-                        t = max(a * de * de, tmin)
-                        f = min(de, b) - t
+                        f = _exact_free(de, b, a, tmin)
                     if usable and d > U[v, u] and d != np.inf:
                         n_far += 1
                     free = min(max(f, near), f_s)
                 end = np.float64(out_end[v, u])  # f_s, or the shadow start when nearer
                 # float32 storage rounds toward the camera (free): the segment only grows
-                fr = np.float32(free)
-                if fr > free:
-                    fr = np.nextafter(fr, np.float32(-np.inf))
+                fr = _toward_camera(free)
                 out_free[v, u] = fr
                 out_invalid[v, u] = bad
                 now |= fr != free0[v, u] or bad
