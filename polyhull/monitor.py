@@ -62,6 +62,7 @@ from .engine.pieces import (
     CameraStack,
     CarveParams,
     ImageStack,
+    MTest,
     PieceSet,
     PyramidStack,
     carve,
@@ -389,6 +390,11 @@ class Monitor:
             prepare_static(s.lower, s.upper, s.free_static, c.near, s.edge)
             for c, s in zip(cell.cameras, self.static.cameras, strict=True)
         ]
+        # the static free depth's pyramids, for the memory's test of M (built once)
+        free_static = ImageStack(self._stack, fill=None)
+        for i, s in enumerate(self.static.cameras):
+            free_static.image(i)[:] = s.free_static
+        self._static_pyramids = PyramidStack.build(free_static, np.ones(len(cell.cameras), dtype=bool))
         self._image_pool: _Pool[_CycleBuffers] = _Pool(
             lambda: _CycleBuffers(self._stack, self._static_classes, [s.free_static for s in self.static.cameras])
         )
@@ -704,7 +710,7 @@ class Monitor:
             if padded_world:
                 raster = rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name])  # type: ignore[arg-type]
             raster_done[i] = time.perf_counter()
-            return raster, self._camera_pixels(i, usable, raster, pixel_bufs[i], pyramids)
+            return raster, self._camera_pixels(i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids)
 
         done = share(self._pool, camera, range(len(cell.cameras)))
         rasters: dict[str, RobotRaster] = {
@@ -753,6 +759,9 @@ class Monitor:
 
         params = self._carve
         pyramid_stack = pyramids.only(active)
+        # the memory's test of M: the segment ends (the free depth of the empty cell with
+        # the padded robot) and the static free depth
+        m_test = MTest(bufs.end_pyramids, self._static_pyramids)
 
         # The distance is decided near the frontier (about last cycle's distance): pieces
         # there, and pieces crossing the floor sheet's top within reach of it, are split
@@ -768,11 +777,17 @@ class Monitor:
         front = max(last - FRONT_SLACK, 0.0) if math.isfinite(last) else 0.0
         floor_top = (self._floor_top, REACH_EXTRA + cell.plausibility.floor_shell_margin)
 
-        def run_carve(init: np.ndarray, frees: ImageStack, ends: ImageStack, coarse: bool = False) -> tuple[PieceSet, bool]:
+        def run_carve(
+            init: np.ndarray, frees: ImageStack, ends: ImageStack, coarse: bool = False, memory_part: bool = False
+        ) -> tuple[PieceSet, bool]:
+            # coarse: the memory's (only inside M) or the hull C's pieces
             p = params
             if coarse:
                 p = replace(p, size_min=max(p.size_min, MEMORY_PIECE), size_max=max(p.size_max, MEMORY_PIECE))
-                return carve(init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, pool=self._pool)
+                return carve(
+                    init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, pool=self._pool,
+                    m_test=m_test if memory_part else None,
+                )
             return carve(
                 init, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, front, floor_top,
                 pool=self._pool,
@@ -799,7 +814,7 @@ class Monitor:
 
             def remember(shadow: ShadowMemory) -> PieceSet:
                 return shadow.pieces(
-                    rasters, free_imgs, lambda init, f, e: run_carve(init, f, e, True)[0], s_lo, s_hi, reach, self._pool
+                    rasters, free_imgs, lambda init, f, e: run_carve(init, f, e, True, True)[0], s_lo, s_hi, reach, self._pool
                 )
 
             memory = self._timed(timings, "memory", lambda: remember(self._shadow))
@@ -856,7 +871,10 @@ class Monitor:
             shadow = self._shadow_front if piece_flags & FRONT else self._shadow
             mem_stacks = None if shadow is None else shadow.stacks
             frees, ends = mem_stacks if mem and mem_stacks is not None else (free_stack, end_stack)
-            out = carve(boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool)[0]
+            out = carve(
+                boxes, self._stack, active, pyramid_stack, frees, ends, spheres, zlo, zhi, k, p, offset, pool=self._pool,
+                m_test=m_test if mem else None,
+            )[0]
             if mem and mem_seeds is not None:
                 # the memory is what comes within reach of the seeds: a coarse memory piece
                 # that did at a corner is, carved finely, only its children that do
@@ -975,6 +993,7 @@ class Monitor:
         raster: RobotRaster | None,
         buffers: PixelBuffers,
         pyramids: PyramidStack,
+        end_pyramids: PyramidStack,
     ) -> _CameraPixels:
         """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
         (thread-safe: it writes only camera ``i``'s images)."""
@@ -1011,6 +1030,7 @@ class Monitor:
                 cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
         # (also without a frame: the pyramids must follow the images they are kept for)
         pyramids.update_camera(i, buffers.changed)
+        end_pyramids.update_camera(i, buffers.end_changed)
         tiles = tile_segments(
             cls.free, cls.end, covered, cell.reconstruction.tile,
             None if raster is None else raster.front, None if raster is None else raster.back, self._tile_tol,
@@ -1091,8 +1111,12 @@ class _CycleBuffers:
             for i, (st, fs) in enumerate(zip(statics, free_static, strict=True))
         ]
         self.pyramids = PyramidStack.allocate(self.free)
+        # the segment ends' pyramids: outside them is the padded robot's occlusion M
+        # (what the shadow memory holds, :mod:`polyhull.engine.memory`)
+        self.end_pyramids = PyramidStack.allocate(self.end)
         for i in range(len(statics)):
             self.pyramids.build_camera(i)
+            self.end_pyramids.build_camera(i)
 
 
 class _Lease:

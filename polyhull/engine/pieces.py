@@ -45,6 +45,7 @@ from .threads import share
 __all__ = [
     "CameraStack",
     "ImageStack",
+    "MTest",
     "PieceSet",
     "PyramidStack",
     "carve",
@@ -295,6 +296,7 @@ def _carve(
     init, R_cw, t_cw, R_wc, t_wc, intr, size, near, active,
     mins, maxs, pyr_image, pyr_off, pyr_shape, nlev, free, end, img_off,
     spheres, zlo, zhi, k_of_n, alpha, size_min, size_max, max_pieces, d_offset, sheet_z, sheet_reach,
+    m_test, mins2, maxs2, pyr_image2, mins3, maxs3, pyr_image3,
 ):  # pragma: no cover - compiled
     n_cam = R_cw.shape[0]
     cap = max(64, 4 * init.shape[0])
@@ -335,8 +337,16 @@ def _carve(
             continue
         n_cover = 0
         n_maybe = 0
+        # with ``m_test``: the segment ends (2) and the static free depth (3) of M's test
+        n_cover2 = 0
+        n_maybe2 = 0
+        n_cover3 = 1  # the piece's own camera: its segments lie in front of its f_s
+        n_maybe3 = 0
         for i in range(n_cam):
-            if i == c or not active[i]:
+            if i == c:
+                continue
+            if not active[i]:
+                n_maybe3 += 1  # no frame now, but it may see the piece free in the empty cell
                 continue
             umin, umax, vmin, vmax, zmin, zmax = project_bounds(
                 verts, R_cw[i], t_cw[i], intr[i, 0], intr[i, 1], intr[i, 2], intr[i, 3], 1e-9
@@ -345,6 +355,8 @@ def _carve(
                 continue  # before i's near plane: nothing free
             if zmin <= 1e-9:
                 n_maybe += 1  # crosses i's camera plane: undecided
+                n_maybe2 += 1
+                n_maybe3 += 1
                 continue
             W = size[i, 0]
             H = size[i, 1]
@@ -355,19 +367,35 @@ def _carve(
             if pu1 < 0 or pv1 < 0 or pu0 > W - 1 or pv0 > H - 1:
                 continue  # outside i's image: not seen
             inside = pu0 >= 0 and pv0 >= 0 and pu1 <= W - 1 and pv1 <= H - 1
-            lo, hi = _range(
-                mins, maxs, pyr_image, pyr_off[i], pyr_shape[i], nlev[i],
-                max(pu0, 0), min(pu1, W - 1), max(pv0, 0), min(pv1, H - 1),
-            )
+            ru0, ru1, rv0, rv1 = max(pu0, 0), min(pu1, W - 1), max(pv0, 0), min(pv1, H - 1)
+            lo, hi = _range(mins, maxs, pyr_image, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
             if inside and zmin > near[i] and zmax < lo:
                 n_cover += 1
                 if n_cover >= k_of_n:
                     break  # seen free by enough cameras: dropped whatever the others see
             elif zmin < hi:
                 n_maybe += 1
+            if m_test:
+                lo2, hi2 = _range(mins2, maxs2, pyr_image2, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
+                if inside and zmin > near[i] and zmax < lo2:
+                    n_cover2 += 1
+                    if n_cover2 >= k_of_n:
+                        break  # enough cameras would see it free with the robot: not in M
+                elif zmin < hi2:
+                    n_maybe2 += 1
+                lo3, hi3 = _range(mins3, maxs3, pyr_image3, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
+                if inside and zmin > near[i] and zmax < lo3:
+                    n_cover3 += 1
+                elif zmin < hi3:
+                    n_maybe3 += 1
         if n_cover >= k_of_n:
             continue
         keep = n_cover + n_maybe < k_of_n
+        if m_test:
+            if n_cover2 >= k_of_n or n_cover3 + n_maybe3 < k_of_n:
+                continue  # outside M: free with the robot, or inside C_static (never M)
+            # whole only when every point is in M: hidden with the robot, free without
+            keep = keep and n_cover2 + n_maybe2 < k_of_n and n_cover3 >= k_of_n
         if not keep:
             # size budget from a lower bound of the distance to the robot
             cxm = 0.0
@@ -549,6 +577,13 @@ class PyramidStack(NamedTuple):
         return out.only(active)
 
 
+class MTest(NamedTuple):
+    """The pyramids of :func:`carve`'s test for the robot occlusion M."""
+
+    ends: PyramidStack  # the cycle's segment ends: free depth of the empty cell with the padded robot
+    static: PyramidStack  # the static free depth f_s
+
+
 class ImageStack:
     """Per-camera images in one flat float32 buffer, each camera's image a view of it.
 
@@ -590,6 +625,7 @@ def carve(
     offset: float = 0.0,
     sheet: tuple[float, float] = (0.0, 0.0),
     pool: Executor | None = None,
+    m_test: MTest | None = None,
 ) -> tuple[PieceSet, bool]:
     """Carve the initial pieces (N, 7) by every other active camera's free depth.
 
@@ -598,6 +634,17 @@ def carve(
     to ``size_min`` (see :mod:`polyhull.engine.refine`). ``sheet = (z, reach)``: a piece
     that crosses the height ``z`` [m] (the top of the floor's noise sheet) within ``reach``
     of that offset is split down to ``size_min`` too.
+
+    ``m_test``: for the shadow memory's pieces, which stand for part of ``C n M``
+    (:mod:`polyhull.engine.memory`; SPEC section 2: ``M = F_static \\ F_static+robot``,
+    here with the padded robot): pyramids laid out as ``pyramids`` (the same cameras and
+    shapes) of the cycle's segment ends, which are the free depth of the empty cell with
+    the padded robot, and of the static free depth ``f_s``. A piece that at least k other
+    cameras see wholly in front of their segment ends is outside M (what of it is in C lies
+    in those cameras' segments, the other pieces); a piece that fewer than k cameras, its
+    own counted, can see in front of ``f_s`` is inside ``C_static``, which M never meets:
+    both are dropped. A piece is kept whole only when it is
+    decided for M as well; otherwise it is split as any undecided piece.
 
     With a ``pool`` and enough pieces, the initial pieces are carved in two halves, on
     this thread and one of the pool's (:func:`polyhull.engine.threads.share`; every piece is carved on its own, so the result is the
@@ -619,7 +666,14 @@ def carve(
         np.asarray(zone_lo, dtype=np.float64), np.asarray(zone_hi, dtype=np.float64),
         int(k_of_n), float(params.alpha), float(params.size_min), float(params.size_max),
     )
-    tail = (float(offset), float(sheet[0]), float(sheet[1]))
+    if m_test is None:  # (the same arrays, unread: one compiled signature)
+        m_args = (False, *([pyramids.mins, pyramids.maxs, pyramids.image] * 2))
+    else:
+        for pyr in m_test:
+            if not (np.array_equal(pyr.offsets, pyramids.offsets) and np.array_equal(pyr.shapes, pyramids.shapes)):
+                raise ValueError("carve: the pyramids of m_test must be laid out as the free depth pyramids")
+        m_args = (True, m_test.ends.mins, m_test.ends.maxs, m_test.ends.image, m_test.static.mins, m_test.static.maxs, m_test.static.image)
+    tail = (float(offset), float(sheet[0]), float(sheet[1]), *m_args)
     if pool is None or initial.shape[0] < PARALLEL_MIN:
         boxes, overflow = _carve(initial, *args, int(params.max_pieces), *tail)
         return PieceSet(boxes, piece_vertices(boxes, stack)), bool(overflow)

@@ -171,6 +171,8 @@ class PixelBuffers:
             the static images.
         changed: (ceil(H / BLOCK), ceil(W / BLOCK)) blocks the last classification wrote
             (where the free depth pyramids must be updated).
+        end_changed: The blocks where the last classification wrote ``end`` (the last and
+            this robot rectangle: where the segment ends' pyramids must be updated).
         rect: (u0, u1, v0, v1) where ``end`` may differ from ``f_s`` (empty: u1 < u0).
     """
 
@@ -185,6 +187,7 @@ class PixelBuffers:
         self.invalid = np.zeros((H, W), dtype=np.bool_)
         self.dirty = np.zeros((H, -(-W // CHUNK)), dtype=np.bool_)
         self.changed = np.zeros((-(-H // BLOCK), -(-W // BLOCK)), dtype=np.bool_)
+        self.end_changed = np.zeros_like(self.changed)
         self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
 
 
@@ -364,6 +367,10 @@ def classify_frame(
         b.rect, float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
+    b.end_changed[:] = False
+    for u0, u1, v0, v1 in (b.rect, rect):
+        if u1 >= u0 and v1 >= v0:
+            b.end_changed[v0 // BLOCK : v1 // BLOCK + 1, u0 // BLOCK : u1 // BLOCK + 1] = True
     b.rect = rect
     seen = max(static.seen, 1)
     return PixelClasses(b.free, b.end, int(n_seg), b.invalid, n_invalid / seen, n_far / seen, out_tiles)
