@@ -66,6 +66,7 @@ from .engine.pieces import (
     PieceSet,
     PyramidStack,
     carve,
+    columns_in_m,
     merge_adjacent,
     piece_vertices,
     piece_volumes,
@@ -390,11 +391,11 @@ class Monitor:
             prepare_static(s.lower, s.upper, s.free_static, c.near, s.edge)
             for c, s in zip(cell.cameras, self.static.cameras, strict=True)
         ]
-        # the static free depth's pyramids, for the memory's test of M (built once)
-        free_static = ImageStack(self._stack, fill=None)
+        # the static free depth and its pyramids, for the tests of M (built once)
+        self._free_static = ImageStack(self._stack, fill=None)
         for i, s in enumerate(self.static.cameras):
-            free_static.image(i)[:] = s.free_static
-        self._static_pyramids = PyramidStack.build(free_static, np.ones(len(cell.cameras), dtype=bool))
+            self._free_static.image(i)[:] = s.free_static
+        self._static_pyramids = PyramidStack.build(self._free_static, np.ones(len(cell.cameras), dtype=bool))
         self._image_pool: _Pool[_CycleBuffers] = _Pool(
             lambda: _CycleBuffers(self._stack, self._static_classes, [s.free_static for s in self.static.cameras])
         )
@@ -834,6 +835,11 @@ class Monitor:
                 "previous_lo": self._prev_lo,
                 "previous_hi": self._prev_hi,
                 "dt": dt,
+                "m_columns": (
+                    (lambda xy, h: columns_in_m(xy, h, self._stack, self._free_static, end_stack, active, k))
+                    if rasters
+                    else None
+                ),
             }
         )
         result: DynamicResult = self._timed(
@@ -905,6 +911,7 @@ class Monitor:
                 allp.select(result.keep), flags, result.inside[result.keep], rules,
                 np.zeros((0, 4)) if no_refine else spheres, params.alpha, recarve, measure, self._pool,
                 front if math.isfinite(last) else None, spheres[self._measured] if len(spheres) else None,
+                sheets_under(result.legs, ctx, horizontal=True),
             ),
         )
         dist, sheet_boxes = refined.distance, refined.sheets

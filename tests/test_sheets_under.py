@@ -3,6 +3,8 @@ against the rule written plainly with numpy, and against point sampling."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -16,6 +18,7 @@ from polyhull.engine.dynamic_rules import (
     _crossing_pairs,
     _sheet_runs,
     box_vertices,
+    hidden_legs,
     sheets_under,
 )
 from polyhull.engine.static_model import SHEET_PITCH, Sheet, _to_world
@@ -161,3 +164,38 @@ def test_a_body_at_a_table_side_keeps_the_side_sheet_down_to_the_floor() -> None
     # on the floor, a piece inside the sheet (flatter than it) keeps nothing
     flat = box_vertices(np.array([[-1.0, -1.0, 0.02]]), np.array([[-0.8, -0.8, 0.1]]))
     assert len(sheets_under(flat, ctx)) == 0
+
+
+
+def test_legs_the_robot_hides_keep_the_floors_sheet_under_them() -> None:
+    """A body whose shins the robot hides (a component touching M that reaches no sheet's
+    top): under its low pieces, within the margin, the columns holding a point of M (here a
+    stand-in for the cycle's images: a shin-sized 8 cm square of M from 0.1 to 0.5 m high)
+    become leg boxes from the floor up to M's lowest tested point, and the floor's sheet
+    kept under them holds the feet within the margin of the shin; a body touching M away
+    from any such column adds nothing, and pieces above ``LEG_TOP`` stand on no leg."""
+    base = _context(tuple(np.full((1, 1), sh.height) for sh in SHEETS))
+    margin = base.params.floor_shell_margin
+    shin = np.array([0.46, 0.54, 0.36, 0.44])  # x0, x1, y0, y1
+
+    def m_columns(xy: np.ndarray, heights: np.ndarray) -> np.ndarray:
+        inside = (xy[:, 0] >= shin[0]) & (xy[:, 0] <= shin[1]) & (xy[:, 1] >= shin[2]) & (xy[:, 1] <= shin[3])
+        in_m = (heights >= 0.1) & (heights <= 0.5)
+        return np.where(inside, heights[np.argmax(in_m)], np.inf)
+
+    ctx = replace(base, m_columns=m_columns)
+    lo, hi = np.array([[0.4, 0.3, 0.5]]), np.array([[0.8, 0.6, 1.5]])  # the body, seen from 0.5 m up
+    legs = hidden_legs(lo, hi, np.array([True]), ctx)
+    assert len(legs) >= 1
+    assert points_in_hexahedra(np.array([[0.5, 0.4, 0.05], [0.5, 0.4, 0.3]]), legs).all()
+    boxes = sheets_under(legs, ctx, horizontal=True)
+    feet = np.array([[0.5 + 0.9 * margin, 0.4, 0.05], [0.5, 0.4 + 0.9 * margin, 0.15]])
+    assert points_in_hexahedra(feet, boxes).all()
+    # beyond the margin (and the sheet grid's cell) of the shin, and above the sheet
+    far = np.array([[0.54 + margin + 2 * SHEET_PITCH, 0.4, 0.05], [0.5, 0.4, 0.3]])
+    assert not points_in_hexahedra(far, boxes).any()
+    away = hidden_legs(lo + 1.5, hi + 1.5, np.array([True]), ctx)  # no M under it
+    assert len(away) == 0
+    high = hidden_legs(lo + np.array([0.0, 0.0, 0.6]), hi + 0.6, np.array([True]), ctx)  # its bottom above LEG_TOP
+    assert len(high) == 0
+    assert len(hidden_legs(lo, hi, np.array([False]), ctx)) == 0  # not touching M

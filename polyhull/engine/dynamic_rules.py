@@ -83,6 +83,7 @@ __all__ = [
     "box_vertices",
     "crosses_sheet_top",
     "group_boxes",
+    "hidden_legs",
     "in_shells",
     "judge_dynamic",
     "shell_cuts",
@@ -141,6 +142,10 @@ class DynamicContext:
             the surface of R3_static (exact; see
             :meth:`polyhull.engine.static_model.StaticModel.boxes_meet`). None: the
             ``static_touch`` grid alone decides what touches R3_static.
+        m_columns: ``m_columns(xy, heights)``: (C,) the lowest of ``heights`` (H,) at
+            which each vertical column ``xy`` (C, 2) lies in the robot's occlusion M this
+            cycle (by its definition, with the padded robot), +inf at none: for the legs
+            the robot hides (:func:`hidden_legs`); None: no robot.
     """
 
     zone: Zone
@@ -157,6 +162,7 @@ class DynamicContext:
     dt: float | None
     sheet_heights: tuple[np.ndarray, ...] = ()
     static_near: StaticNear | None = None
+    m_columns: Callable[[ArrayF64, ArrayF64], ArrayF64] | None = None
 
     @classmethod
     def of(
@@ -208,6 +214,9 @@ class DynamicResult:
         seeds: (N,) the kept pieces the next cycle's shadow memory grows from: pieces (not
             of the memory, not inside a shell or a noise sheet) of components that pass
             too_small on their own volume and stand on a surface or touch the boundary.
+        legs: (L, 8, 3) boxes standing for the legs the robot may hide under the kept
+            components that touch M (:func:`hidden_legs`): the floor's sheet is kept
+            under them (:func:`sheets_under`), where the feet are.
     """
 
     keep: np.ndarray
@@ -219,6 +228,7 @@ class DynamicResult:
     kept_lo: ArrayF64
     kept_hi: ArrayF64
     seeds: np.ndarray
+    legs: ArrayF64
 
 
 def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF64:
@@ -490,7 +500,7 @@ def judge_dynamic(
     if n == 0:
         z = np.zeros((0, 3))
         none = np.zeros(0, bool)
-        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none)
+        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none, np.zeros((0, 8, 3)))
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
@@ -605,7 +615,66 @@ def judge_dynamic(
     # Pieces inside a shell or a noise sheet are left out: feet in the floor's sheet lie
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
-    return DynamicResult(keep, labels, own, spared, inside, tuple(removed), clo[kept_k], chi[kept_k], seeds)
+    legs = hidden_legs(lo, hi, own & touch_m[labels], ctx) if p.too_thin else np.zeros((0, 8, 3))
+    return DynamicResult(keep, labels, own, spared, inside, tuple(removed), clo[kept_k], chi[kept_k], seeds, legs)
+
+
+LEG_TOP = 1.0
+"""[m] The kept pieces lower than this (their bottom) may stand on legs the robot hides."""
+
+LEG_HEIGHTS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
+"""[m] Heights above the floor at which the columns under those pieces are tested for M:
+a hidden leg crosses the top of the floor's sheet (0.24 m at most in the paper cell) in M."""
+
+LEG_GRID = 0.05
+"""[m] Step of the columns' grid: a shin or the shadow hiding it (7 cm across or more, the
+detection capability) holds one of its points (a disc of diameter sqrt(2) x 5 cm does)."""
+
+
+def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicContext) -> ArrayF64:
+    """(L, 8, 3) boxes standing for the legs the robot may hide: under the kept pieces
+    ``touching`` (N,) M (of components that touch it; bounds ``lo``, ``hi`` (N, 3)) lower
+    than ``LEG_TOP``, every column of a ``LEG_GRID`` grid over their footprints that holds
+    a point of M at a height of ``LEG_HEIGHTS`` (``ctx.m_columns``), from the floor up to
+    the highest of them (through the top of the floor's sheet, however thick it is there).
+
+    A person whose legs the robot hides from every camera stands on M (the rules keep
+    them: :func:`judge_dynamic`), but nothing of them crosses the floor's sheet where the
+    legs are: their feet, inside the sheet and outside M, went with the sheet rule. Any
+    possibly occupied space over M may hold such a body, and its hidden legs cross the
+    sheet's top in M under it, so the floor's sheet kept under these boxes (grown by the
+    margin, :func:`sheets_under` with ``horizontal``) holds the feet. M holds the padded
+    robot too: a leg may stand in its padding, and under an arm swept that low beside a
+    person the sheet then reaches the arm (a contact). Away from the robot M has no point
+    so low, and nothing is added."""
+    sel = touching & (lo[:, 2] < LEG_TOP)
+    if ctx.m_columns is None or not sel.any():
+        return np.zeros((0, 8, 3))
+    zlo = np.asarray(ctx.zone.min, dtype=np.float64)
+    zhi = np.asarray(ctx.zone.max, dtype=np.float64)
+    g = LEG_GRID
+    a = np.floor((np.clip(lo[sel, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
+    b = np.ceil((np.clip(hi[sel, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
+    base = a.min(axis=0)
+    a, b = a - base, b - base
+    shape = b.max(axis=0) + 1
+    # the union of the footprints as grid cells (a 2-D difference array)
+    occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
+    np.add.at(occ, (a[:, 0], a[:, 1]), 1)
+    np.add.at(occ, (b[:, 0], a[:, 1]), -1)
+    np.add.at(occ, (a[:, 0], b[:, 1]), -1)
+    np.add.at(occ, (b[:, 0], b[:, 1]), 1)
+    cells = np.argwhere(occ.cumsum(0).cumsum(1)[:-1, :-1] > 0)
+    if len(cells) == 0:
+        return np.zeros((0, 8, 3))
+    xy = zlo[:2] + (cells + base + 0.5) * g
+    col = np.isfinite(ctx.m_columns(xy, zlo[2] + np.asarray(LEG_HEIGHTS)))
+    if not col.any():
+        return np.zeros((0, 8, 3))
+    # a leg from the floor up through every sheet's top (whatever the local thickness)
+    c0 = xy[col] - 0.5 * g
+    z0 = np.full(len(c0), zlo[2] - ctx.params.support_eps)
+    return box_vertices(np.column_stack([c0, z0]), np.column_stack([c0 + g, z0 + ctx.params.support_eps + LEG_HEIGHTS[-1]]))
 
 
 def _confirm_static_touch(
@@ -646,7 +715,7 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
     return out
 
 
-def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
+def sheets_under(vertices: ArrayF64, ctx: DynamicContext, horizontal: bool = False) -> ArrayF64:
     """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
     every piece that crosses a sheet's top face (or reaches into a vertical sheet), the
     sheet over the piece's footprint on the face, grown by ``floor_shell_margin`` and
@@ -658,13 +727,17 @@ def sheets_under(vertices: ArrayF64, ctx: DynamicContext) -> ArrayF64:
     superset), as one box per run of cells along x, the run broken where the height map
     changes by more than ``SHEET_STEP``: each box is as high as C_static reaches in the
     slab over its run (the sheet's height where no height map is known). One compiled
-    pass over the sheets (:func:`_sheet_boxes`)."""
+    pass over the sheets (:func:`_sheet_boxes`). ``horizontal``: the horizontal sheets only
+    (no vertical face's, nor what hangs from it)."""
     if vertices.shape[0] == 0 or not ctx.sheets:
         return np.zeros((0, 8, 3))
     pairs, bounds = _crossing_pairs(vertices, ctx)
+    arr = _sheet_arrays(tuple(ctx.sheets))
+    if horizontal:  # the floor's sheet and the tops' only
+        flat = arr.down[pairs[:, 1]] < 0
+        pairs, bounds = pairs[flat], bounds[flat]
     if len(pairs) == 0:
         return np.zeros((0, 8, 3))
-    arr = _sheet_arrays(tuple(ctx.sheets))
     # on a vertical face, the body over the pieces' footprint can reach down to the floor
     # inside the sheet (legs closer to a wall or a table's side than its sheet is thick):
     # the boxes hang down to the face's bottom. Where the piece reaches in from above the

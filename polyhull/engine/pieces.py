@@ -52,6 +52,7 @@ __all__ = [
     "merge_adjacent",
     "piece_vertices",
     "piece_volumes",
+    "columns_in_m",
     "vertex_bounds",
 ]
 
@@ -582,6 +583,56 @@ class MTest(NamedTuple):
 
     ends: PyramidStack  # the cycle's segment ends: free depth of the empty cell with the padded robot
     static: PyramidStack  # the static free depth f_s
+
+
+def columns_in_m(
+    xy: ArrayF64, heights: ArrayF64, stack: CameraStack, static_free: ImageStack, ends: ImageStack, active: np.ndarray, k_of_n: int
+) -> ArrayF64:
+    """(C,) the lowest of ``heights`` (H,) [m] at which each vertical column ``xy`` (C, 2)
+    lies in the robot's occlusion M (SPEC section 2, ``M = F_static \\ F_static+robot``, k
+    of n), +inf where it does at none. A point is in M when at least k cameras see it free
+    in the empty cell (in front of ``static_free``, the static free depth ``f_s``) and
+    fewer do with the robot (in front of ``ends``, the cycle's segment ends: the empty
+    cell's free depth with the padded robot). Cameras not ``active`` count for neither."""
+    out = np.empty(len(xy), dtype=np.float64)
+    _columns_in_m(
+        np.ascontiguousarray(xy, dtype=np.float64).reshape(-1, 2), np.ascontiguousarray(heights, dtype=np.float64),
+        stack.R_cw, stack.t_cw, stack.intr, stack.size, stack.near, np.asarray(active, dtype=np.bool_),
+        static_free.flat, ends.flat, static_free.offsets, int(k_of_n), out,
+    )
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _columns_in_m(xy, heights, R_cw, t_cw, intr, size, near, active, fs, ends, off, k, out):  # pragma: no cover - compiled
+    for c in range(xy.shape[0]):
+        out[c] = np.inf
+        for h in range(heights.shape[0]):
+            n_static = 0
+            n_robot = 0
+            for i in range(R_cw.shape[0]):
+                if not active[i]:
+                    continue
+                px, py, pz = xy[c, 0], xy[c, 1], heights[h]
+                x = R_cw[i, 0, 0] * px + R_cw[i, 0, 1] * py + R_cw[i, 0, 2] * pz + t_cw[i, 0]
+                y = R_cw[i, 1, 0] * px + R_cw[i, 1, 1] * py + R_cw[i, 1, 2] * pz + t_cw[i, 1]
+                z = R_cw[i, 2, 0] * px + R_cw[i, 2, 1] * py + R_cw[i, 2, 2] * pz + t_cw[i, 2]
+                if not z > near[i]:
+                    continue
+                u = np.floor(intr[i, 0] * x / z + intr[i, 2] + 0.5)
+                v = np.floor(intr[i, 1] * y / z + intr[i, 3] + 0.5)
+                if not (u >= 0 and u < size[i, 0] and v >= 0 and v < size[i, 1]):
+                    continue
+                j = off[i] + int(v) * size[i, 0] + int(u)
+                if z < fs[j]:
+                    n_static += 1
+                if z < ends[j]:
+                    n_robot += 1
+                    if n_robot >= k:
+                        break  # k cameras would see it with the robot: not in M
+            if n_static >= k and n_robot < k:
+                out[c] = heights[h]
+                break
 
 
 class ImageStack:

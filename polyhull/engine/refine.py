@@ -224,6 +224,7 @@ def refine_kept(
     pool: Executor | None = None,
     front_hint: float | None = None,
     hint_spheres: ArrayF64 | None = None,
+    extra: ArrayF64 | None = None,
 ) -> Refined:
     """Carve again the kept pieces (``kept`` with their ``flags`` and whether each is
     ``inside`` a shell) that can decide the distance to the robot (see the module
@@ -236,15 +237,19 @@ def refine_kept(
     piece's lower bound lies more than ``BAND`` below it (see the module docstring), the
     bound counted to ``hint_spheres`` (S', 4) when given: the balls of the links the
     distance is measured to (``spheres`` may hold more, e.g. a base fixed to the world,
-    whose balls steer the carving but cannot decide the distance)."""
+    whose balls steer the carving but cannot decide the distance). ``extra`` (E, 8, 3):
+    sheet boxes of the region besides the pieces' (the sheet under the legs the robot
+    hides), measured with every part and returned with the sheets."""
     margin = rules.margin
     reach = REACH_EXTRA + margin  # farthest behind the frontier that is refined
     cross = rules.crossing(kept.vertices)
     cut = np.zeros(len(kept), dtype=bool)  # the rules ran on these pieces already
 
+    more = np.zeros((0, 8, 3)) if extra is None else extra
+
     def region(part: np.ndarray, best: Any) -> tuple[ArrayF64, Any]:
         v = kept.vertices
-        sheets = rules.sheets(v[part & ~cut & cross & ((flags & OWN) > 0)])
+        sheets = np.concatenate([rules.sheets(v[part & ~cut & cross & ((flags & OWN) > 0)]), more])
         return sheets, measure(np.concatenate([v[part & ~cut], sheets]), best)
 
     all_ = np.ones(len(kept), dtype=bool)
