@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
-from hypothesis import HealthCheck, Phase, assume, example, given, settings
+from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
 from polyhull.cellfile import default_cell_path, load_cell
@@ -163,16 +163,6 @@ def test_people_beside_an_obstacle_stay_in_r3(
     effects=st.sampled_from(["none", "all", "no flying pixels"]),
     seed=st.integers(0, 100_000),
 )
-# Found by a search of 60 such walks: a person 0.74 m from the base whose shins the arm
-# hides from every camera; the body above them is seen (supported by M, it stays), but
-# nothing of it reaches the floor's sheet, so the sheet rule took 18 of 300 foot points
-# (z < 0.07 m) until a component standing on M kept the sheet below it
-@example(
-    r0=0.7366533627090506, bearing=-2.4490149198493913, heading=0.31676571520784513, step=0.057764817773552884,
-    height=1.600957753163471, pose="standing",
-    q01=[0.13900047665426105, 0.8993734194776558, 0.8787805836857895, 0.3967477946885196, 0.31469556802785903, 0.32396179586335827],
-    dq=[0.0] * 6, effects="all", seed=70300,
-)
 def test_people_walking_up_to_the_robot_stay_in_r3(
     paper: tuple[Monitor, Simulator],
     r0: float, bearing: float, heading: float, step: float, height: float, pose: str,
@@ -200,6 +190,61 @@ def test_people_walking_up_to_the_robot_stay_in_r3(
         t = 1.0 + 0.1 * c
         frames = sim.render(qc, targets=[person], seed=seed + c, stamp=t, effects=chosen[effects])
         v = monitor.step(frames, qc, stamp=t)
+        assert not any("internal" in f for f in v.faults), v.faults
+        if v.faults:  # a contact stops the robot whatever the region
+            break
+        body = sample_points_inside(person, 300, seed=seed + c)
+        body = body[cell.zone.contains(body)]
+        in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
+        ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+        assert ok.all(), f"cycle {c}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+
+
+def _search_walk(monitor: Monitor, seed: int) -> tuple[list[tuple[object, np.ndarray, float]], SensorEffects]:
+    """The walks of the randomised search that found the scenes below (seeded numpy, not
+    hypothesis): a person 0.6 to 1.5 m from the base walks toward the robot (or past it)
+    for four cycles of 0.1 s while the robot moves; (person, q, stamp) per cycle, and the
+    sensor effects."""
+    cell, robot = monitor.cell, monitor.robot
+    assert robot is not None and cell.robot is not None
+    bx, by = cell.robot.base[:2]
+    rng = np.random.default_rng(seed)
+    r0, th = rng.uniform(0.6, 1.5), rng.uniform(-np.pi, np.pi)
+    x, y = bx + r0 * np.cos(th), by + r0 * np.sin(th)
+    head = th + np.pi + rng.uniform(-1.2, 1.2)
+    step = rng.uniform(0.05, 0.15)
+    yaw = head + rng.uniform(-0.5, 0.5)
+    pose = str(rng.choice(["standing", "walking", "reaching"]))
+    height = rng.uniform(1.5, 1.95)
+    q = robot.lower + rng.random(6) * (robot.upper - robot.lower)
+    dq = rng.uniform(-0.08, 0.08, 6)
+    effects = [SensorEffects.none(), SensorEffects(), SensorEffects(flying_pixels=False)][int(rng.integers(3))]
+    out = []
+    for c in range(4):
+        position = (x + c * step * np.cos(head), y + c * step * np.sin(head))
+        person = make_person(height=height, pose=pose, position=position, yaw=yaw)  # type: ignore[arg-type]
+        out.append((person, np.clip(q + c * dq, robot.lower, robot.upper), 1.0 + 0.1 * c))
+    return out, effects
+
+
+# Found by a search of 360 such walks (seeds 7000-7059, 20000-20149, 30000-30149), each
+# with the default sensor effects but for 20077 (none):
+# - 7030, 20077: the arm hides the person's shins from every camera; the body above them
+#   is seen and stands on M, but nothing of it crossed the floor's sheet where the legs
+#   were, so the sheet rule took their feet (18 and 8 of 300 body points) until the
+#   columns of M under such a body kept the sheet (``hidden_legs``);
+# - 20004, 30148: a hand (or a head) seen alone beside the robot, the arm (the neck) between
+#   it and the body hidden by the robot: too small on its own, it went (1 of 300 points)
+#   until such a part within an arm's length of a body that touches M is judged with it.
+@pytest.mark.parametrize("seed", [7030, 20004, 20077, 30148])
+def test_people_whose_limbs_the_robot_hides_stay_in_r3(paper: tuple[Monitor, Simulator], seed: int) -> None:
+    monitor, sim = paper
+    cell = monitor.cell
+    walk, effects = _search_walk(monitor, seed)
+    monitor.reset()
+    for c, (person, q, t) in enumerate(walk):
+        frames = sim.render(q, targets=[person], seed=seed * 10 + c, stamp=t, effects=effects)
+        v = monitor.step(frames, q, stamp=t)
         assert not any("internal" in f for f in v.faults), v.faults
         if v.faults:  # a contact stops the robot whatever the region
             break

@@ -18,7 +18,8 @@ what it touches:
 The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported):
 
 1. ``too_small``: the sum of the pieces' volumes (at least the union's) is below
-   ``min_volume``;
+   ``min_volume``, unless the component touches M within ``ARM_LENGTH`` of a component
+   that passes the rule and touches M too (a hand whose forearm the robot hides);
 2. ``flying``: no piece reaches down to within ``support_eps`` of the top of a sheet (the
    floor's or an obstacle top's, whose noise sheet stands in for the surface);
 3. ``too_thin``, part-wise: a piece that lies in a shell around a known object (within
@@ -537,6 +538,7 @@ def judge_dynamic(
     if p.too_small:
         rest = np.bincount(labels, weights=np.where(shell_cut, 0.0, volumes), minlength=K)
         small = rest < p.min_volume
+        small &= ~_attached_through_m(small, touch_m, labels, lo, hi, clo, chi, pool)
     on_surface = np.zeros(K, dtype=bool)  # reaches a sheet (the floor, an obstacle face)
     if p.flying:
         supported = touch_m.copy()
@@ -675,6 +677,39 @@ def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicCo
     c0 = xy[col] - 0.5 * g
     z0 = np.full(len(c0), zlo[2] - ctx.params.support_eps)
     return box_vertices(np.column_stack([c0, z0]), np.column_stack([c0 + g, z0 + ctx.params.support_eps + LEG_HEIGHTS[-1]]))
+
+
+ARM_LENGTH = 0.75
+"""[m] Shoulder to fingertip: how far from a person's seen body a part of them (a hand)
+may be seen alone, the arm between hidden by the robot."""
+
+
+def _attached_through_m(
+    small: np.ndarray, touch_m: np.ndarray, labels: np.ndarray, lo: ArrayF64, hi: ArrayF64,
+    clo: ArrayF64, chi: ArrayF64, pool: Executor | None,
+) -> np.ndarray:
+    """(K,) the components too small on their own that may be a part of a person whose rest
+    the robot hides: they touch M, and a piece of them (``lo``, ``hi`` (N, 3)) comes within
+    ``ARM_LENGTH`` of a piece of a component that passes the size rule and touches M too
+    (a hand reaching past the robot's arm, the forearm hidden, the body seen). Judged with
+    that body through M, they are not too small. The components' boxes (``clo``, ``chi``
+    (K, 3)) select the few that need the pieces' test."""
+    big = ~small & touch_m
+    cand = np.nonzero(small & touch_m)[0]
+    out = np.zeros(len(small), dtype=bool)
+    if not (big.any() and len(cand)):
+        return out
+    b = big[labels]
+    blo, bhi = lo[b], hi[b]
+    # the components' boxes first (a superset), then the pieces of those that pass
+    cand = cand[any_overlap(clo[cand], chi[cand], blo, bhi, pool, reach=ARM_LENGTH)]
+    if len(cand):
+        q = np.zeros(len(small), dtype=bool)
+        q[cand] = True
+        q = q[labels]
+        near = any_overlap(lo[q], hi[q], blo, bhi, pool, reach=ARM_LENGTH)
+        out[np.unique(labels[q][near])] = True
+    return out
 
 
 def _confirm_static_touch(
