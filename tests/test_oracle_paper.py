@@ -150,6 +150,18 @@ def test_people_beside_an_obstacle_stay_in_r3(
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
 
 
+def _assert_body_in_r3(monitor: Monitor, frames: object, v: object, person: object, seed: int, cycle: int) -> None:
+    """Every one of 300 body points of the person (in the zone) lies in R3 of verdict ``v``,
+    in the padded robot's occlusion M by its definition, in a solid, or is one the exact
+    free depth frees."""
+    cell = monitor.cell
+    body = sample_points_inside(person, 300, seed=seed)  # type: ignore[arg-type]
+    body = body[cell.zone.contains(body)]
+    in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[attr-defined]
+    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)  # type: ignore[arg-type]
+    assert ok.all(), f"cycle {cycle}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+
+
 @SEARCH
 @given(
     r0=st.floats(0.6, 1.5),
@@ -193,11 +205,7 @@ def test_people_walking_up_to_the_robot_stay_in_r3(
         assert not any("internal" in f for f in v.faults), v.faults
         if v.faults:  # a contact stops the robot whatever the region
             break
-        body = sample_points_inside(person, 300, seed=seed + c)
-        body = body[cell.zone.contains(body)]
-        in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-        ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
-        assert ok.all(), f"cycle {c}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+        _assert_body_in_r3(monitor, frames, v, person, seed + c, c)
 
 
 def _search_walk(monitor: Monitor, seed: int) -> tuple[list[tuple[object, np.ndarray, float]], SensorEffects]:
@@ -239,7 +247,6 @@ def _search_walk(monitor: Monitor, seed: int) -> tuple[list[tuple[object, np.nda
 @pytest.mark.parametrize("seed", [7030, 20004, 20077, 30148])
 def test_people_whose_limbs_the_robot_hides_stay_in_r3(paper: tuple[Monitor, Simulator], seed: int) -> None:
     monitor, sim = paper
-    cell = monitor.cell
     walk, effects = _search_walk(monitor, seed)
     monitor.reset()
     for c, (person, q, t) in enumerate(walk):
@@ -248,8 +255,4 @@ def test_people_whose_limbs_the_robot_hides_stay_in_r3(paper: tuple[Monitor, Sim
         assert not any("internal" in f for f in v.faults), v.faults
         if v.faults:  # a contact stops the robot whatever the region
             break
-        body = sample_points_inside(person, 300, seed=seed + c)
-        body = body[cell.zone.contains(body)]
-        in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-        ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
-        assert ok.all(), f"cycle {c}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
+        _assert_body_in_r3(monitor, frames, v, person, seed + c, c)
