@@ -49,10 +49,10 @@ __all__ = [
     "PieceSet",
     "PyramidStack",
     "carve",
+    "columns_in_m",
     "merge_adjacent",
     "piece_vertices",
     "piece_volumes",
-    "columns_in_m",
     "vertex_bounds",
 ]
 
