@@ -382,8 +382,9 @@ class Monitor:
 
         self._shadow = shadow_memory(False)
         self._binary = tuple(c.kind == "color" for c in cell.cameras)
-        # a colour camera's robot occlusion is in front of the robot too
-        self._shadow_front = shadow_memory(True) if any(self._binary) else None
+        # the robot occlusion in front of the robot: a colour camera's whole ray, a depth
+        # camera's tolerance band before the padded front
+        self._shadow_front = shadow_memory(True)
         # a cycle's images (held by its verdict and last_images) and its rasters (held by
         # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
         # one pair per camera, are left reset after each use
@@ -819,8 +820,7 @@ class Monitor:
                 )
 
             memory = self._timed(timings, "memory", lambda: remember(self._shadow))
-            if self._shadow_front is not None:
-                memory_front = self._timed(timings, "memory", lambda: remember(self._shadow_front))  # type: ignore[arg-type]
+            memory_front = self._timed(timings, "memory", lambda: remember(self._shadow_front))
         memory = PieceSet.concat([memory, memory_front])
         allp = PieceSet.concat([pieces, memory])
         vols = piece_volumes(allp.boxes, self._stack)

@@ -158,3 +158,25 @@ def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     sees it."""
     k = monitor.cell.reconstruction.k_of_n
     return (_static_counts(monitor, points, False) >= k) & (_static_counts(monitor, points, True) < k)
+
+
+def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
+    """(P,) whether points lie, in every camera whose robot raster covers their pixel,
+    between the padded robot's front and back depths there (the padded robot itself, or a
+    gap between its pieces along the ray: the memory holds neither), and some camera
+    covers them."""
+    some = np.zeros(len(points), dtype=bool)
+    every = np.ones(len(points), dtype=bool)
+    assert monitor.last_images is not None
+    for s in monitor.statics:
+        cam = s.camera
+        r = monitor.last_images.raster.get(cam.name)
+        if r is None:
+            continue
+        from polyhull.commands.bench import _pixels
+
+        ui, vi, z, ok = _pixels(cam, points)
+        cov = ok & r.covered[vi, ui]
+        some |= cov
+        every &= ~cov | ((z >= r.front[vi, ui]) & (z <= r.back[vi, ui]))
+    return some & every

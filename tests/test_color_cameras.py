@@ -15,10 +15,10 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
+from conftest import exactly_possibly_occupied, in_robot_occlusion, in_robot_span, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
-from polyhull.commands.bench import _pixels, _solid, rescale_camera
+from polyhull.commands.bench import _solid, rescale_camera
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import STATIC_TOLERANCE, points_in_hexahedra
 from polyhull.engine.memory import seen_parts
@@ -101,26 +101,6 @@ def test_a_person_at_the_robot_is_in_r3_or_in_m(color: tuple[Monitor, Simulator]
     assert in_r3.mean() > 0.9
 
 
-def _in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
-    """(P,) whether points lie, in every camera whose robot raster covers their pixel,
-    between the padded robot's front and back depths there (the padded robot itself, or a
-    gap between its pieces along the ray: the memory holds neither), and some camera
-    covers them."""
-    some = np.zeros(len(points), dtype=bool)
-    every = np.ones(len(points), dtype=bool)
-    assert monitor.last_images is not None
-    for s in monitor.statics:
-        cam = s.camera
-        r = monitor.last_images.raster.get(cam.name)
-        if r is None:
-            continue
-        ui, vi, z, ok = _pixels(cam, points)
-        cov = ok & r.covered[vi, ui]
-        some |= cov
-        every &= ~cov | ((z >= r.front[vi, ui]) & (z <= r.back[vi, ui]))
-    return some & every
-
-
 def test_the_memory_holds_what_m_hides_in_front_of_the_robot(color: tuple[Monitor, Simulator]) -> None:
     """The same person, reaching over the robot's arm, seen again a cycle later: what M
     hides of them is held by the shadow memory, whose part in front of the robot (the
@@ -145,7 +125,7 @@ def test_the_memory_holds_what_m_hides_in_front_of_the_robot(color: tuple[Monito
     reach = cell.safety.human_speed * 0.1
     gap = np.maximum(0.0, np.maximum(seed_lo[None] - body[:, None], body[:, None] - seed_hi[None]))
     near_seeds = np.sqrt((gap**2).sum(axis=-1)).min(axis=1) <= reach
-    hidden = in_robot_occlusion(monitor, body) & exactly_possibly_occupied(monitor, frames, body) & ~_in_robot_span(monitor, body)
+    hidden = in_robot_occlusion(monitor, body) & exactly_possibly_occupied(monitor, frames, body) & ~in_robot_span(monitor, body)
     hidden &= near_seeds
     assert hidden.sum() >= 5  # the scene tests the memory
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]

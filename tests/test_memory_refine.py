@@ -57,8 +57,12 @@ def memory_cycle() -> dict[str, Any]:
     memory, judge = ShadowMemory.pieces, monitor_module.judge_dynamic
 
     def record_memory(self: ShadowMemory, *args: Any) -> PieceSet:
+        # the part behind the robot (checked here) and the band in front of it, in that order
         out = memory(self, *args)
-        seen["memory"], seen["lo"], seen["hi"], seen["reach"] = out, *args[3:6]
+        if self is monitor._shadow:
+            seen["memory"], seen["lo"], seen["hi"], seen["reach"] = out, *args[3:6]
+        else:
+            seen["front"] = out
         return out
 
     def record_judge(*args: Any, **kwargs: Any) -> Any:
@@ -89,7 +93,9 @@ def test_refined_memory_keeps_its_part_within_reach_of_the_seeds(memory_cycle: d
     verdict, monitor = memory_cycle["verdict"], memory_cycle["monitor"]
     assert not verdict.faults
     mem: PieceSet = memory_cycle["memory"]
-    keep = memory_cycle["keep"][len(memory_cycle["keep"]) - len(mem) :]  # memory pieces come last
+    # the memory's pieces come last: the part behind the robot, then the band in front
+    end = len(memory_cycle["keep"]) - len(memory_cycle["front"])
+    keep = memory_cycle["keep"][end - len(mem) : end]
     kept = mem.select(keep)
     assert len(kept) > 10
     pts = _points_in_pieces(kept, monitor._stack, SAMPLES, np.random.default_rng(0))
