@@ -57,6 +57,7 @@ from .engine.dynamic_rules import (
     judge_dynamic,
     sheets_under,
 )
+from .engine.edge_wedges import EdgeWedges, robot_boxes
 from .engine.memory import MEMORY_PIECE, ShadowMemory, seen_parts, within_reach
 from .engine.pieces import (
     CameraStack,
@@ -392,6 +393,8 @@ class Monitor:
             prepare_static(s.lower, s.upper, s.free_static, c.near, s.edge)
             for c, s in zip(cell.cameras, self.static.cameras, strict=True)
         ]
+        # the edge pixels' wedges, projected into the other cameras (built once)
+        self._edge_wedges = EdgeWedges.build(self.static.cameras)
         # the static free depth and its pyramids, for the tests of M (built once)
         self._free_static = ImageStack(self._stack, fill=None)
         for i, s in enumerate(self.static.cameras):
@@ -706,13 +709,18 @@ class Monitor:
         t0 = time.perf_counter()
         raster_done = [t0] * len(cell.cameras)
 
+        # where each camera sees the padded robot (the edge wedges its shadow may meet)
+        boxes = robot_boxes(cell.cameras, np.concatenate(padded_world)) if padded_world else [None] * len(cell.cameras)
+
         def camera(i: int) -> tuple[RobotRaster | None, _CameraPixels]:
             cam = cell.cameras[i]
             raster = None
             if padded_world:
                 raster = rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name])  # type: ignore[arg-type]
             raster_done[i] = time.perf_counter()
-            return raster, self._camera_pixels(i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids)
+            return raster, self._camera_pixels(
+                i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids, self._edge_wedges.ends(i, boxes)
+            )
 
         done = share(self._pool, camera, range(len(cell.cameras)))
         rasters: dict[str, RobotRaster] = {
@@ -1001,9 +1009,11 @@ class Monitor:
         buffers: PixelBuffers,
         pyramids: PyramidStack,
         end_pyramids: PyramidStack,
+        wedges: tuple[np.ndarray, np.ndarray],
     ) -> _CameraPixels:
         """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
-        (thread-safe: it writes only camera ``i``'s images)."""
+        (thread-safe: it writes only camera ``i``'s images; ``wedges``: its edge pixels
+        whose segment runs to their own free depth this cycle)."""
         cell = self.cell
         cam, s = cell.cameras[i], self.static.cameras[i]
         depth = usable.get(cam.name)
@@ -1021,6 +1031,7 @@ class Monitor:
             shadow_rect=(0, -1, 0, -1) if raster is None or raster.rect is None else raster.rect,
             static=self._static_classes[i],
             buffers=buffers,
+            wedges=wedges,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:

@@ -15,7 +15,11 @@ the depth where the padded robot's shadow starts, +inf where the robot does not 
 - the pixel's occluded **segment** runs from ``f(p)`` back to ``end(p) = min(f_s(p), S(p))``;
   beyond ``S`` the robot's shadow (its occlusion M) takes over. A pixel is **explained by
   the robot** when its segment is empty because ``f(p) >= S(p)``, and **unexplained** when
-  the segment is not empty: a person, a new object, a dropout, a flying pixel.
+  the segment is not empty: a person, a new object, a dropout, a flying pixel;
+- at a static edge pixel whose wedge may meet another camera's robot shadow
+  (:mod:`polyhull.engine.edge_wedges`), with a valid non-edge reading that has a segment
+  within ``WEDGE_REACH`` px, ``end`` is the pixel's own band's least free depth instead of
+  ``f_s``: a reading in front of its own band (in the widened one) then has a segment.
 
 Only unexplained pixels cost geometry (:mod:`polyhull.engine.pieces`). The free depth image
 ``f`` of every camera is what the other cameras carve with, through min/max pyramids.
@@ -143,6 +147,13 @@ def _packed_band(lower: ArrayF32, upper: ArrayF32) -> np.ndarray:
     return np.ascontiguousarray(tq | (uq << np.uint32(16)))
 
 
+_NO_WEDGES = np.zeros((0, 2), dtype=np.int64)  # writable, as every later list (one kernel signature)
+
+WEDGE_REACH = 2
+"""[px] An edge pixel's wedge (:mod:`polyhull.engine.edge_wedges`) runs to its own free
+depth when a valid reading with a segment, not at a static edge, lies within this many
+pixels (across the 2-3 px wide strip of an edge's widened bands)."""
+
 CHUNK = 16
 """Pixels of a row tested together for a non-static reading (a branch-free, vectorised
 test); a chunk holding one is classified pixel by pixel."""
@@ -172,8 +183,11 @@ class PixelBuffers:
         changed: (ceil(H / BLOCK), ceil(W / BLOCK)) blocks the last classification wrote
             (where the free depth pyramids must be updated).
         end_changed: The blocks where the last classification wrote ``end`` (the last and
-            this robot rectangle: where the segment ends' pyramids must be updated).
+            this robot rectangle and edge wedges: where the segment ends' pyramids must be
+            updated).
         rect: (u0, u1, v0, v1) where ``end`` may differ from ``f_s`` (empty: u1 < u0).
+        wedges: (m, 2) the edge pixels (v, u) whose ``end`` is their own free depth
+            (:mod:`polyhull.engine.edge_wedges`); ``end`` differs from ``f_s`` there too.
     """
 
     def __init__(self, static: StaticClasses, free_static: ArrayF32, free: ArrayF32 | None = None, end: ArrayF32 | None = None) -> None:
@@ -189,6 +203,7 @@ class PixelBuffers:
         self.changed = np.zeros((-(-H // BLOCK), -(-W // BLOCK)), dtype=np.bool_)
         self.end_changed = np.zeros_like(self.changed)
         self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
+        self.wedges = _NO_WEDGES
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -208,7 +223,7 @@ def _toward_camera(x):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, prev_rect, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, prev_rect, wedge_vu, wedge_end, prev_wedge_vu, applied, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
     only the row chunks holding a reading not surely in the band (the packed ``band`` of
     :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
@@ -216,8 +231,12 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
     classification wrote and this one does not is put back to the static images. A static
     pixel frees ``free0`` and its segment (to ``f_s``, or to the robot's shadow start) is
     empty; a static edge pixel (``edge``, in the chunks of ``edge_chunks``, classified
-    every cycle) frees its reading's exact free depth, at least ``free0``. ``dirty`` and
-    ``changed`` are updated (see :class:`PixelBuffers`)."""
+    every cycle) frees its reading's exact free depth, at least ``free0``. The candidate
+    edge pixels ``wedge_vu`` (v, u) within ``WEDGE_REACH`` px of a valid non-edge reading
+    with a segment end their segments at ``wedge_end`` (or the robot's shadow start), so a reading in front of their
+    own band has a segment there (``applied``, (m,) bool, says which); the last cycle's
+    applied ones, ``prev_wedge_vu``, are put back first. ``dirty`` and ``changed`` are
+    updated (see :class:`PixelBuffers`)."""
     H, W = depth.shape
     out_tiles[:, :] = False
     changed[:, :] = False
@@ -231,6 +250,10 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
     for v in range(sv0, sv1 + 1):  # the shadow image is +inf outside the rectangle
         for u in range(su0, su1 + 1):
             out_end[v, u] = min(fs[v, u], shadow[v, u])
+    for w in range(prev_wedge_vu.shape[0]):  # the last cycle's edge wedges
+        v, u = prev_wedge_vu[w, 0], prev_wedge_vu[w, 1]
+        inside = v >= sv0 and v <= sv1 and u >= su0 and u <= su1
+        out_end[v, u] = min(fs[v, u], shadow[v, u]) if inside else fs[v, u]
     for v in range(H):
         for ci in range(dirty.shape[1]):
             c0 = ci * CHUNK
@@ -306,6 +329,23 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
             if now or was:
                 changed[v // BLOCK, c0 // BLOCK] = True
                 changed[v // BLOCK, (c1 - 1) // BLOCK] = True
+    # a candidate edge wedge runs to its own free depth where something is seen next to it:
+    # a valid reading with a segment, not at a static edge, within WEDGE_REACH px
+    for w in range(wedge_vu.shape[0]):
+        v, u = wedge_vu[w, 0], wedge_vu[w, 1]
+        seen = False
+        for qv in range(max(v - WEDGE_REACH, 0), min(v + WEDGE_REACH + 1, H)):
+            for qu in range(max(u - WEDGE_REACH, 0), min(u + WEDGE_REACH + 1, W)):
+                seen |= not edge[qv, qu] and not out_invalid[qv, qu] and out_free[qv, qu] < out_end[qv, qu]
+        applied[w] = seen
+        if not seen:
+            continue
+        inside = v >= sv0 and v <= sv1 and u >= su0 and u <= su1
+        before = out_end[v, u]
+        out_end[v, u] = min(wedge_end[w], shadow[v, u]) if inside else wedge_end[w]
+        if out_free[v, u] < out_end[v, u] and not out_free[v, u] < before:
+            n_seg += 1
+            out_tiles[v // tile, u // tile] = True
     return n_seg, n_invalid, n_far
 
 
@@ -327,6 +367,7 @@ def classify_frame(
     static: StaticClasses | None = None,
     buffers: PixelBuffers | None = None,
     edge: np.ndarray | None = None,
+    wedges: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -351,6 +392,11 @@ def classify_frame(
             ``free_static``), written and returned in the classes; new ones when None.
         edge: (H, W) the static edge pixels (used when ``static`` is None): a reading in
             their band frees its exact free depth.
+        wedges: ((m, 2) edge pixels (v, u), (m,) their segment ends [m]): the edge pixels
+            whose segment may run to their own band's free depth this cycle
+            (:meth:`polyhull.engine.edge_wedges.EdgeWedges.ends`); it does where a valid
+            reading with a segment, not at an edge, lies within ``WEDGE_REACH`` px. None:
+            none.
     """
     H, W = free_static.shape
     if static is None:
@@ -361,17 +407,27 @@ def classify_frame(
     rect = np.array((0, W - 1, 0, H - 1) if shadow_rect is None else shadow_rect, dtype=np.int64)
     out_tiles = np.empty(((H + tile - 1) // tile, (W + tile - 1) // tile), dtype=np.bool_)
     b = buffers
+    if wedges is None:
+        wedge_vu, wedge_end = _NO_WEDGES, np.zeros(0, dtype=np.float32)
+    else:
+        wedge_vu = np.ascontiguousarray(wedges[0], dtype=np.int64).reshape(-1, 2)
+        wedge_end = np.ascontiguousarray(wedges[1], dtype=np.float32)
+    applied = np.zeros(len(wedge_vu), dtype=np.bool_)
     n_seg, n_invalid, n_far = _classify(
         depth, static.band, reference, static.lower, static.upper, free_static, static.free0, static.edge,
-        static.edge_chunks, shadow_start, rect,
-        b.rect, float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
+        static.edge_chunks, shadow_start, rect, b.rect, wedge_vu, wedge_end, b.wedges, applied,
+        float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
     b.end_changed[:] = False
     for u0, u1, v0, v1 in (b.rect, rect):
         if u1 >= u0 and v1 >= v0:
             b.end_changed[v0 // BLOCK : v1 // BLOCK + 1, u0 // BLOCK : u1 // BLOCK + 1] = True
+    wedge_vu = wedge_vu[applied]
+    for vu in (b.wedges, wedge_vu):
+        b.end_changed[vu[:, 0] // BLOCK, vu[:, 1] // BLOCK] = True
     b.rect = rect
+    b.wedges = wedge_vu
     seen = max(static.seen, 1)
     return PixelClasses(b.free, b.end, int(n_seg), b.invalid, n_invalid / seen, n_far / seen, out_tiles)
 

@@ -124,6 +124,11 @@ class StaticCamera:
             static edge) and that free something: ``free_static`` is the nearer surface's
             there, and a reading's own exact free depth frees more (the classification
             computes it, :func:`polyhull.engine.pixels.classify_frame`).
+        own_free: (H, W) the least free depth of a reading in the pixel's own band (before
+            an edge widened it) [m], rounded down: ``free_static`` except at ``edge``
+            pixels, where it is the farther surface's. Where another camera's robot shadow
+            may cross the wedge between the two, the pixel's segment runs to it
+            (:mod:`polyhull.engine.edge_wedges`).
     """
 
     camera: Camera
@@ -134,6 +139,7 @@ class StaticCamera:
     block: int
     surface: ArrayF64
     edge: np.ndarray
+    own_free: ArrayF32
 
     @classmethod
     def build(
@@ -187,6 +193,10 @@ class StaticCamera:
         widened = (T < T0) | (U > U0)
         edge_px = np.ascontiguousarray(widened & ~no_free & (f_s > camera.near))
         edge_px.setflags(write=False)
+        with np.errstate(invalid="ignore"):
+            f_own = np.minimum(T0 - camera.tau(T0), B - camera.tau(U0))
+        own_free = _down32(np.where(edge_px, np.clip(np.fmax(f_own, f_s), camera.near, camera.far), f_s))
+        own_free.setflags(write=False)
         w = np.where(f_s > camera.near, -1.0 / f_s, -1.0 / camera.near)
         arrays = {
             "reference": _down32(B),
@@ -198,7 +208,7 @@ class StaticCamera:
             a.setflags(write=False)
         surface = conservative_surface(w, block)
         surface.setflags(write=False)
-        return cls(camera=camera, block=int(block), surface=surface, edge=edge_px, **arrays)
+        return cls(camera=camera, block=int(block), surface=surface, edge=edge_px, own_free=own_free, **arrays)
 
     @property
     def tau_a(self) -> float:
