@@ -52,17 +52,23 @@ def robot_boxes(cameras: Sequence[Camera], vertices: np.ndarray) -> list[RobotBo
     """Per camera, the :class:`RobotBox` of the padded robot's world ``vertices`` (N, 3), or
     None where the robot is wholly outside the image (it shadows nothing there)."""
     out: list[RobotBox | None] = []
+    vt = np.asarray(vertices, dtype=np.float64).T
     for cam in cameras:
         H, W = cam.shape
-        uv, z = cam.project(vertices)
-        if len(z) == 0:
+        if len(vertices) == 0:
             out.append(None)
             continue
-        if np.min(z) <= 1e-9:
+        T = cam.T_camera_world
+        pc = T[:3, :3] @ vt + T[:3, 3:4]  # (3, N): rows reduce fast
+        z = pc[2]
+        if z.min() <= 1e-9:
             out.append(RobotBox(-np.inf, np.inf, -np.inf, np.inf, 0.0))
             continue
-        u0, v0 = np.min(uv, axis=0) - 1.0
-        u1, v1 = np.max(uv, axis=0) + 1.0
+        x, y = pc[0] / z, pc[1] / z
+        k = cam.intrinsics
+        x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
+        u0, u1 = k.fx * x0 + k.cx - 1.0, k.fx * x1 + k.cx + 1.0
+        v0, v1 = k.fy * y0 + k.cy - 1.0, k.fy * y1 + k.cy + 1.0
         if u1 < -0.5 or v1 < -0.5 or u0 > W - 0.5 or v0 > H - 0.5:
             out.append(None)
             continue
@@ -71,14 +77,14 @@ def robot_boxes(cameras: Sequence[Camera], vertices: np.ndarray) -> list[RobotBo
 
 
 class _Wedges(NamedTuple):
-    """One camera's wedges: pixels (n, 2) as (v, u), their ``own_free`` (n,) [m], and per
-    camera (its own: None) the wedges' rectangles (n, 4) as (u0, u1, v0, v1) and farthest
-    depth (n,) [m] in that camera's image."""
+    """One camera's wedges: pixels (n, 2) as (v, u), their ``own_free`` (n,) [m], the other
+    cameras' indices (J,), and in each other camera's image the wedges' rectangle and
+    farthest depth [m], (5, J, n): u0, u1, v0, v1, zmax."""
 
     vu: np.ndarray
     end: np.ndarray
-    boxes: list[np.ndarray | None]
-    zmax: list[np.ndarray | None]
+    others: np.ndarray
+    boxes: np.ndarray
 
 
 class EdgeWedges:
@@ -99,25 +105,20 @@ class EdgeWedges:
             own = np.asarray(s.own_free, dtype=np.float64)  # type: ignore[attr-defined]
             v, u = np.nonzero(np.asarray(s.edge) & (own > fs))  # type: ignore[attr-defined]
             corners = _corners(cam, u, v, fs[v, u], own[v, u])  # (n, 8, 3) world
-            boxes: list[np.ndarray | None] = []
-            zmax: list[np.ndarray | None] = []
-            for j, other in enumerate(cams):
-                if j == i:
-                    boxes.append(None)
-                    zmax.append(None)
-                    continue
-                uv, z = other.project(corners.reshape(-1, 3))
+            others = np.array([j for j in range(len(cams)) if j != i], dtype=np.int64)
+            boxes = np.empty((5, len(others), len(v)))
+            for n, j in enumerate(others):
+                uv, z = cams[j].project(corners.reshape(-1, 3))
                 uv = uv.reshape(-1, 8, 2)
                 z = z.reshape(-1, 8)
                 behind = np.any(z <= 1e-9, axis=1)
                 with np.errstate(invalid="ignore"):
-                    b = np.column_stack(
-                        [uv[:, :, 0].min(axis=1), uv[:, :, 0].max(axis=1), uv[:, :, 1].min(axis=1), uv[:, :, 1].max(axis=1)]
+                    b = np.stack(
+                        [uv[:, :, 0].min(axis=1), uv[:, :, 0].max(axis=1), uv[:, :, 1].min(axis=1), uv[:, :, 1].max(axis=1), z.max(axis=1)]
                     )
-                b[behind] = (-np.inf, np.inf, -np.inf, np.inf)
-                boxes.append(b)
-                zmax.append(np.where(behind, np.inf, z.max(axis=1)))
-            wedges.append(_Wedges(np.column_stack([v, u]).astype(np.int64), own[v, u].astype(np.float32), boxes, zmax))
+                b[:, behind] = np.array([-np.inf, np.inf, -np.inf, np.inf, np.inf])[:, None]
+                boxes[:, n] = b
+            wedges.append(_Wedges(np.column_stack([v, u]).astype(np.int64), own[v, u].astype(np.float32), others, boxes))
         return cls(wedges)
 
     def count(self, i: int) -> int:
@@ -129,12 +130,12 @@ class EdgeWedges:
         robot shadow this cycle (``robots``: :func:`robot_boxes`), and their segment end
         ``own_free`` (m,) [m]."""
         w = self._wedges[i]
-        hit = np.zeros(len(w.end), dtype=bool)
-        for j, r in enumerate(robots):
-            b, zmax = w.boxes[j], w.zmax[j]
-            if r is None or b is None or zmax is None:
-                continue
-            hit |= (b[:, 1] >= r.u0) & (b[:, 0] <= r.u1) & (b[:, 3] >= r.v0) & (b[:, 2] <= r.v1) & (zmax >= r.zmin)
+        seen = [n for n, j in enumerate(w.others) if robots[j] is not None]
+        if not seen or not len(w.end):
+            return w.vu[:0], w.end[:0]
+        r = np.array([robots[w.others[n]] for n in seen]).T[:, :, None]  # (5, J', 1)
+        b = w.boxes[:, seen] if len(seen) < len(w.others) else w.boxes
+        hit = ((b[1] >= r[0]) & (b[0] <= r[1]) & (b[3] >= r[2]) & (b[2] <= r[3]) & (b[4] >= r[4])).any(axis=0)
         return w.vu[hit], w.end[hit]
 
 
