@@ -130,34 +130,16 @@ def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray
     return occupied
 
 
-def _static_counts(monitor: Monitor, points: np.ndarray, robot: bool) -> np.ndarray:
-    """(P,) how many cameras free each point in the empty cell, by the SPEC's exact free
-    depth of the reference ``B - tau(B)`` (``robot``: with the padded robot of the
-    monitor's last cycle, whose covered pixels free only up to its shadow start)."""
-    from polyhull.commands.bench import _pixels
-    from polyhull.regions import free_depth
-
-    count = np.zeros(len(points), dtype=np.int64)
-    for s in monitor.statics:
-        cam = s.camera
-        ref = np.asarray(s.reference, dtype=np.float64)
-        f = free_depth(cam, ref, ref)
-        r = monitor.last_images.raster.get(cam.name) if robot and monitor.last_images is not None else None
-        if r is not None:
-            f = np.where(r.covered, np.minimum(f, r.shadow_start), f)
-        u, v, z, inside = _pixels(cam, points)
-        count += inside & (z >= cam.near) & (z <= f[v, u])
-    return count
-
-
 def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie in the padded robot's occlusion M of the monitor's last cycle
     by its definition (SPEC section 2, ``M = F_static minus F_static+robot``, k of n): at
-    least k cameras free them in the empty cell, fewer with the robot. Stricter than "in
-    some camera's robot shadow", which excuses a point one camera cannot see though another
+    least k cameras free them in the empty cell, fewer with the robot
+    (:func:`polyhull.commands.bench.padded_robot_occlusion`). Stricter than "in some
+    camera's robot shadow", which excuses a point one camera cannot see though another
     sees it."""
-    k = monitor.cell.reconstruction.k_of_n
-    return (_static_counts(monitor, points, False) >= k) & (_static_counts(monitor, points, True) < k)
+    from polyhull.commands.bench import padded_robot_occlusion
+
+    return padded_robot_occlusion(monitor, points)
 
 
 def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
