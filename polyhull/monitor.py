@@ -1032,6 +1032,7 @@ class Monitor:
             static=self._static_classes[i],
             buffers=buffers,
             wedges=wedges,
+            free_empty=s.free_empty,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:

@@ -12,8 +12,12 @@ the depth where the padded robot's shadow starts, +inf where the robot does not 
   what the pixel saw, not with the static model's wedge behind the edge;
 - otherwise the exact free depth of SPEC section 2 is computed, clamped to ``f_s``:
   ``f(p) = min(f_exact(p), f_s(p))`` (never more than the static model allows);
-- the pixel's occluded **segment** runs from ``f(p)`` back to ``end(p) = min(f_s(p), S(p))``;
-  beyond ``S`` the robot's shadow (its occlusion M) takes over. A pixel is **explained by
+- the pixel's occluded **segment** runs from ``f(p)`` back to ``end(p) = min(f_s(p), S(p))``,
+  or, for a surface seen in front of the band (a valid reading there in the pixel and its
+  8 neighbours), to ``min(f_e(p), S(p))`` with ``f_e = B - tau(B)`` the empty cell's free
+  depth (the SPEC's M is defined from the empty cell: the space the empty cell shows the
+  pixel, behind what it sees now, is not M); beyond ``S`` the robot's shadow (its
+  occlusion M) takes over. A pixel is **explained by
   the robot** when its segment is empty because ``f(p) >= S(p)``, and **unexplained** when
   the segment is not empty: a person, a new object, a dropout, a flying pixel;
 - at a static edge pixel whose wedge may meet another camera's robot shadow
@@ -222,8 +226,17 @@ def _toward_camera(x):  # pragma: no cover - compiled
     return f
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _static_end(fs, shadow, v, u, sv0, sv1, su0, su1):  # pragma: no cover - compiled
+    """A static pixel's segment end: ``f_s``, or the robot's shadow start when nearer (read
+    only inside the shadow rectangle ``[su0, su1] x [sv0, sv1]``)."""
+    if v >= sv0 and v <= sv1 and u >= su0 and u <= su1:
+        return min(fs[v, u], shadow[v, u])
+    return fs[v, u]
+
+
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, prev_rect, wedge_vu, wedge_end, prev_wedge_vu, applied, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, rect, prev_rect, wedge_vu, wedge_end, prev_wedge_vu, applied, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
     only the row chunks holding a reading not surely in the band (the packed ``band`` of
     :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
@@ -235,8 +248,15 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
     edge pixels ``wedge_vu`` (v, u) within ``WEDGE_REACH`` px of a valid non-edge reading
     with a segment end their segments at ``wedge_end`` (or the robot's shadow start), so a reading in front of their
     own band has a segment there (``applied``, (m,) bool, says which); the last cycle's
-    applied ones, ``prev_wedge_vu``, are put back first. ``dirty`` and ``changed`` are
-    updated (see :class:`PixelBuffers`)."""
+    applied ones, ``prev_wedge_vu``, are put back first. A pixel with a reading outside the
+    band ends its segment at ``fe``, the empty cell's free depth ``B - tau(B)`` (or the
+    robot's shadow start), not at ``f_s``: the space behind what it sees that the empty
+    cell shows it is not M (a surface seen in front of the band only: a valid reading there
+    in the pixel and its 8 neighbours; a pixel without a reading, beyond its band, or an
+    isolated flying pixel keeps ``f_s``, the band's declared tolerance of M). The extended
+    pixels already have a segment, in a chunk already written. ``dirty`` and ``changed``
+    are updated (see
+    :class:`PixelBuffers`); ``changed`` also marks where ``end`` was written."""
     H, W = depth.shape
     out_tiles[:, :] = False
     changed[:, :] = False
@@ -252,8 +272,7 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
             out_end[v, u] = min(fs[v, u], shadow[v, u])
     for w in range(prev_wedge_vu.shape[0]):  # the last cycle's edge wedges
         v, u = prev_wedge_vu[w, 0], prev_wedge_vu[w, 1]
-        inside = v >= sv0 and v <= sv1 and u >= su0 and u <= su1
-        out_end[v, u] = min(fs[v, u], shadow[v, u]) if inside else fs[v, u]
+        out_end[v, u] = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
     for v in range(H):
         for ci in range(dirty.shape[1]):
             c0 = ci * CHUNK
@@ -271,6 +290,7 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
                     for u in range(c0, c1):
                         out_free[v, u] = free0[v, u]
                         out_invalid[v, u] = False
+                        out_end[v, u] = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
                     dirty[v, ci] = False
                     changed[v // BLOCK, c0 // BLOCK] = True
                     changed[v // BLOCK, (c1 - 1) // BLOCK] = True
@@ -290,6 +310,8 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
                     elif was:
                         out_free[v, u] = free0[v, u]
                         out_invalid[v, u] = False
+                    if was:
+                        out_end[v, u] = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
                     continue
                 f_s = np.float64(fs[v, u])
                 bad = False
@@ -316,7 +338,11 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
                     if usable and d > U[v, u] and d != np.inf:
                         n_far += 1
                     free = min(max(f, near), f_s)
-                end = np.float64(out_end[v, u])  # f_s, or the shadow start when nearer
+                # f_s, or the shadow start when nearer (a surface seen in front of the band
+                # runs farther: the pass after this one)
+                e32 = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
+                out_end[v, u] = e32
+                end = np.float64(e32)
                 # float32 storage rounds toward the camera (free): the segment only grows
                 fr = _toward_camera(free)
                 out_free[v, u] = fr
@@ -329,6 +355,28 @@ def _classify(depth, band, B, T, U, fs, free0, edge, edge_chunks, shadow, rect, 
             if now or was:
                 changed[v // BLOCK, c0 // BLOCK] = True
                 changed[v // BLOCK, (c1 - 1) // BLOCK] = True
+    # a surface seen in front of the band (a valid reading there, and in all 8 neighbours,
+    # not an isolated flying pixel) hides what the empty cell shows the pixel up to its free
+    # depth fe: the segment runs there (or to the shadow start when nearer)
+    if not is_color:
+        for tv in range(out_tiles.shape[0]):
+            for tu in range(out_tiles.shape[1]):
+                if not out_tiles[tv, tu]:
+                    continue
+                for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
+                    for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
+                        if fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                            continue
+                        whole = True
+                        for qv in range(v - 1, v + 2):
+                            for qu in range(u - 1, u + 2):
+                                dq = depth[qv, qu]
+                                whole &= dq >= near and dq <= far and dq < T[qv, qu]
+                        if whole:
+                            e32 = fe[v, u]
+                            if v >= sv0 and v <= sv1 and u >= su0 and u <= su1:
+                                e32 = min(e32, shadow[v, u])
+                            out_end[v, u] = max(out_end[v, u], e32)
     # a candidate edge wedge runs to its own free depth where something is seen next to it:
     # a valid reading with a segment, not at a static edge, within WEDGE_REACH px
     for w in range(wedge_vu.shape[0]):
@@ -368,6 +416,7 @@ def classify_frame(
     buffers: PixelBuffers | None = None,
     edge: np.ndarray | None = None,
     wedges: tuple[np.ndarray, np.ndarray] | None = None,
+    free_empty: ArrayF32 | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -397,6 +446,9 @@ def classify_frame(
             (:meth:`polyhull.engine.edge_wedges.EdgeWedges.ends`); it does where a valid
             reading with a segment, not at an edge, lies within ``WEDGE_REACH`` px. None:
             none.
+        free_empty: (H, W) the empty cell's free depth ``B - tau(B)`` [m]
+            (:attr:`polyhull.engine.static_model.StaticCamera.free_empty`), where a
+            segment of a reading outside the band ends; None: ``free_static``.
     """
     H, W = free_static.shape
     if static is None:
@@ -414,12 +466,13 @@ def classify_frame(
         wedge_end = np.ascontiguousarray(wedges[1], dtype=np.float32)
     applied = np.zeros(len(wedge_vu), dtype=np.bool_)
     n_seg, n_invalid, n_far = _classify(
-        depth, static.band, reference, static.lower, static.upper, free_static, static.free0, static.edge,
+        depth, static.band, reference, static.lower, static.upper, free_static,
+        free_static if free_empty is None else free_empty, static.free0, static.edge,
         static.edge_chunks, shadow_start, rect, b.rect, wedge_vu, wedge_end, b.wedges, applied,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
-    b.end_changed[:] = False
+    b.end_changed[:] = b.changed  # the chunks classified (an unexplained pixel's end)
     for u0, u1, v0, v1 in (b.rect, rect):
         if u1 >= u0 and v1 >= v0:
             b.end_changed[v0 // BLOCK : v1 // BLOCK + 1, u0 // BLOCK : u1 // BLOCK + 1] = True

@@ -129,6 +129,9 @@ class StaticCamera:
             pixels, where it is the farther surface's. Where another camera's robot shadow
             may cross the wedge between the two, the pixel's segment runs to it
             (:mod:`polyhull.engine.edge_wedges`).
+        free_empty: (H, W) the free depth of the empty cell's own reading, ``B - tau(B)``
+            [m] (SPEC section 2, from which M is defined), rounded down; at least
+            ``free_static``, ``near`` where the pixel frees nothing: where a segment ends.
     """
 
     camera: Camera
@@ -140,6 +143,7 @@ class StaticCamera:
     surface: ArrayF64
     edge: np.ndarray
     own_free: ArrayF32
+    free_empty: ArrayF32
 
     @classmethod
     def build(
@@ -197,6 +201,10 @@ class StaticCamera:
             f_own = np.minimum(T0 - camera.tau(T0), B - camera.tau(U0))
         own_free = _down32(np.where(edge_px, np.clip(np.fmax(f_own, f_s), camera.near, camera.far), f_s))
         own_free.setflags(write=False)
+        with np.errstate(invalid="ignore"):
+            f_e = np.fmax(B_far - camera.tau(B_far), f_s)
+        free_empty = _down32(np.where(no_free, camera.near, np.clip(f_e, camera.near, camera.far)))
+        free_empty.setflags(write=False)
         w = np.where(f_s > camera.near, -1.0 / f_s, -1.0 / camera.near)
         arrays = {
             "reference": _down32(B),
@@ -208,7 +216,7 @@ class StaticCamera:
             a.setflags(write=False)
         surface = conservative_surface(w, block)
         surface.setflags(write=False)
-        return cls(camera=camera, block=int(block), surface=surface, edge=edge_px, own_free=own_free, **arrays)
+        return cls(camera=camera, block=int(block), surface=surface, edge=edge_px, own_free=own_free, free_empty=free_empty, **arrays)
 
     @property
     def tau_a(self) -> float:
