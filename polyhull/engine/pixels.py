@@ -244,19 +244,19 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
     classification wrote and this one does not is put back to the static images. A static
     pixel frees ``free0`` and its segment (to ``f_s``, or to the robot's shadow start) is
     empty; a static edge pixel (``edge``, in the chunks of ``edge_chunks``, classified
-    every cycle) frees its reading's exact free depth, at least ``free0``. The candidate
-    edge pixels ``wedge_vu`` (v, u) within ``WEDGE_REACH`` px of a valid non-edge reading
-    with a segment end their segments at ``wedge_end`` (or the robot's shadow start), so a reading in front of their
-    own band has a segment there (``applied``, (m,) bool, says which); the last cycle's
-    applied ones, ``prev_wedge_vu``, are put back first. A pixel with a reading outside the
-    band ends its segment at ``fe``, the empty cell's free depth ``B - tau(B)`` (or the
-    robot's shadow start), not at ``f_s``: the space behind what it sees that the empty
-    cell shows it is not M (a surface seen in front of the band only: a valid reading there
-    in the pixel and its 8 neighbours; a pixel without a reading, beyond its band, or an
-    isolated flying pixel keeps ``f_s``, the band's declared tolerance of M). The extended
-    pixels already have a segment, in a chunk already written. ``dirty`` and ``changed``
-    are updated (see
-    :class:`PixelBuffers`); ``changed`` also marks where ``end`` was written."""
+    every cycle) frees its reading's exact free depth, at least ``free0``. A pixel seeing a
+    surface in front of the band (a valid reading there in it and its 8 neighbours) ends
+    its segment at ``fe``, the empty cell's free depth ``B - tau(B)`` (or the robot's
+    shadow start), not at ``f_s``: the empty cell shows it the space behind what it sees,
+    which is not M; a pixel without a reading, beyond its band, or an isolated flying pixel
+    keeps ``f_s`` (the band's declared tolerance of M). These pixels already have a
+    segment, in a chunk already written. The candidate edge pixels ``wedge_vu`` (v, u)
+    within ``WEDGE_REACH`` px of a valid non-edge reading with a segment end their
+    segments at ``wedge_end`` (or the robot's shadow start), so a reading in front of
+    their own band has a segment there (``applied``, (m,) bool, says which); the last
+    cycle's applied ones, ``prev_wedge_vu``, are put back first. ``dirty`` and ``changed``
+    are updated (see :class:`PixelBuffers`); ``changed`` also marks where ``end`` was
+    written."""
     H, W = depth.shape
     out_tiles[:, :] = False
     changed[:, :] = False
@@ -447,8 +447,8 @@ def classify_frame(
             reading with a segment, not at an edge, lies within ``WEDGE_REACH`` px. None:
             none.
         free_empty: (H, W) the empty cell's free depth ``B - tau(B)`` [m]
-            (:attr:`polyhull.engine.static_model.StaticCamera.free_empty`), where a
-            segment of a reading outside the band ends; None: ``free_static``.
+            (:attr:`polyhull.engine.static_model.StaticCamera.free_empty`), where the
+            segment of a surface seen in front of the band ends; None: ``free_static``.
     """
     H, W = free_static.shape
     if static is None:
