@@ -34,14 +34,14 @@ def _step_reference(cam) -> np.ndarray:  # noqa: ANN001 - a Camera
     return B
 
 
-def _classify(static: StaticCamera, D: np.ndarray, buffers: PixelBuffers, wedges) -> object:  # noqa: ANN001
+def _classify(static: StaticCamera, D: np.ndarray, buffers: PixelBuffers, wedges=None, free_empty=None):  # noqa: ANN001, ANN202
     cam = static.camera
     return classify_frame(
         D, static.reference, static.lower, static.upper, static.free_static,
         np.full(cam.shape, np.inf, dtype=np.float32), near=cam.near, far=cam.far,
         tau_a=static.tau_a, tau_min=cam.tolerance_min, is_color=False,
         static=prepare_static(static.lower, static.upper, static.free_static, cam.near, static.edge),
-        buffers=buffers, wedges=wedges,
+        buffers=buffers, wedges=wedges, free_empty=free_empty,
     )
 
 
@@ -156,24 +156,15 @@ def test_a_surface_seen_in_front_of_the_band_ends_at_the_empty_cells_free_depth(
     assert fe > fs + 0.05 and not static.edge.any()
     buffers = PixelBuffers(prepare_static(static.lower, static.upper, static.free_static, cam.near, static.edge), static.free_static)
 
-    def classify(D: np.ndarray):  # noqa: ANN202
-        return classify_frame(
-            D, static.reference, static.lower, static.upper, static.free_static,
-            np.full(cam.shape, np.inf, dtype=np.float32), near=cam.near, far=cam.far,
-            tau_a=static.tau_a, tau_min=cam.tolerance_min, is_color=False,
-            static=prepare_static(static.lower, static.upper, static.free_static, cam.near, static.edge),
-            buffers=buffers, free_empty=static.free_empty,
-        )
-
     D = static.reference.copy()
     D[v - 2 : v + 3, u - 2 : u + 3] = 3.0  # a surface 1 m in front of the wall
     D[5, 30] = 3.0  # an isolated reading
-    cls = classify(D)
+    cls = _classify(static, D, buffers, free_empty=static.free_empty)
     assert cls.end[v, u] == fe and cls.end[v - 1, u - 1] == fe  # its 3 x 3 is the surface
     assert cls.end[v - 2, u] == fs  # on the surface's border
     assert cls.end[5, 30] == fs and cls.free[5, 30] < fs
     assert buffers.end_changed[v // BLOCK, u // BLOCK]
-    cls = classify(static.reference.copy())  # gone: back to the static end
+    cls = _classify(static, static.reference.copy(), buffers, free_empty=static.free_empty)  # gone: back to the static end
     assert cls.end[v, u] == fs and cls.unexplained == 0
 
 
