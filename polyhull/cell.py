@@ -309,7 +309,7 @@ class PlausibilityParams:
             component of the previous cycle.
         small_gaps: In image space, free the segments of pixel clusters too narrow to hide
             an object of ``detection_size`` (dropout patches, flying and out-of-range
-            pixels walled in by pixels that read the static scene).
+            pixels walled in by pixels that read the static scene or the robot).
         support_eps: Contact tolerance [m] of the flying rule.
         min_volume: Smallest volume [m^3] of a person part that can appear alone.
         shell_thickness: Thickness [m] of the noise shell around known objects.

@@ -1,6 +1,6 @@
-"""The small_gaps rule frees only reading-less clusters walled in by the static scene and
-narrower than the detection capability (synthetic images, exact expectations, and a ball
-oracle)."""
+"""The small_gaps rule frees only reading-less clusters walled in by readings of the static
+scene or of the robot and narrower than the detection capability (synthetic images, exact
+expectations, and a ball oracle in front of a wall and in front of the robot)."""
 
 from __future__ import annotations
 
@@ -54,14 +54,33 @@ def test_valid_readings_are_never_filled() -> None:
     assert not _gaps(free, end, invalid, fs).any()
 
 
-@pytest.mark.parametrize("where", ["person", "robot", "blind", "border"])
-def test_a_patch_next_to_anything_but_the_static_scene_stays(where: str) -> None:
+def test_a_patch_walled_in_by_the_robot_is_a_small_gap() -> None:
+    """A dropout patch on the robot's image: every pixel around it reads the robot (free to
+    its shadow start, no segment), and the patch's segments end at the shadow start."""
+    free, end, invalid, fs = _scene()
+    end[17:27, 27:37] = free[17:27, 27:37] = 2.0  # the robot's surface, explained
+    _drop(free, invalid, 20, 24, 30, 34)
+    gap = _gaps(free, end, invalid, fs)
+    assert gap.sum() == 16 and gap[20:24, 30:34].all()
+    # the segments' far end sets the width: at the wall's depth the same patch is too wide
+    end[20:24, 30:34] = fs[20:24, 30:34]
+    assert not _gaps(free, end, invalid, fs, size=0.035).any()
+    assert _gaps(free, end, invalid, fs, size=0.04).sum() == 16
+
+
+@pytest.mark.parametrize("where", ["person", "person at the robot", "robot colour", "blind", "border"])
+def test_a_patch_next_to_anything_but_the_static_scene_or_the_robot_stays(where: str) -> None:
     free, end, invalid, fs = _scene()
     _drop(free, invalid, 20, 23, 30, 33)
     if where == "person":
         free[23, 31] = 1.5  # a valid changed reading touching the patch
-    elif where == "robot":
-        end[19, 29] = free[19, 29] = 2.0  # explained by the robot: free to its shadow start only
+    elif where == "person at the robot":
+        end[17:26, 27:36] = free[17:26, 27:36] = 2.0  # the robot's surface around the patch
+        _drop(free, invalid, 20, 23, 30, 33)
+        free[19, 29] = 1.5  # a reading in front of the robot: a segment (a hand)
+    elif where == "robot colour":
+        # a colour camera's pixel the robot changes frees nothing (near, rounded toward the camera)
+        end[19, 29] = free[19, 29] = np.nextafter(np.float32(NEAR), np.float32(0))
     elif where == "blind":
         fs[20, 33] = free[20, 33] = end[20, 33] = 0.5 * NEAR  # sees nothing even in the empty cell
     else:
@@ -84,7 +103,9 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
         ring = ndimage.binary_dilation(labels == k, structure=np.ones((3, 3), dtype=bool)) & (labels != k)
         touches_border = vs.min() == 0 or us.min() == 0 or vs.max() == H - 1 or us.max() == W - 1
         f64 = fs[ring].astype(np.float64)  # compared in float64, as the compiled pass does
-        closed = not touches_border and not ((f64 <= near) | (free[ring] < fs[ring])).any()
+        static = (f64 > near) & (free[ring] >= fs[ring])
+        robot = ~invalid[ring] & (free[ring].astype(np.float64) > near) & (free[ring] >= end[ring])
+        closed = not touches_border and (static | robot).all()
         zmax = float(end[vs, us].astype(np.float64).max())
         if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
             out[vs, us] = True
@@ -124,26 +145,37 @@ def _rays() -> np.ndarray:
     st.integers(0, 2**31 - 1),
     st.floats(0.1, 0.6),  # ball diameter [m] (the declared capability)
     st.integers(1, 6), st.integers(1, 6),  # the dropout patch [px]
+    st.booleans(),  # the patch lies on the robot's image
 )
-def test_no_point_of_a_ball_of_the_declared_size_is_freed(seed: int, size: float, ph: int, pw: int) -> None:
-    """Independent oracle: a ball of diameter ``size`` stands in front of a wall; pixels
-    whose centre ray meets it read it (z-depth of the hit), a dropout patch reads nothing.
-    Where the rule frees a pixel, no point of the ball that projects to it lies in front of
-    its new free depth (elsewhere, the ball's points within a pixel's footprint may lie in
-    front of its centre ray's reading: the pixel model, not this rule). 20 balls each."""
+def test_no_point_of_a_ball_of_the_declared_size_is_freed(
+    seed: int, size: float, ph: int, pw: int, on_robot: bool
+) -> None:
+    """Independent oracle: a ball of diameter ``size`` stands in front of a wall, or in
+    front of the robot's surface (readings explained by the robot, free to its shadow start)
+    that covers the patch and the pixels around it; pixels whose centre ray meets the ball
+    read it (z-depth of the hit), a dropout patch reads nothing. Where the rule frees a
+    pixel, no point of the ball that projects to it lies in front of its new free depth
+    (elsewhere, the ball's points within a pixel's footprint may lie in front of its centre
+    ray's reading: the pixel model, not this rule). 20 balls each."""
     rng = np.random.default_rng(seed)
     for _ in range(20):
-        _ball_in_a_patch(rng, size, ph, pw)
+        _ball_in_a_patch(rng, size, ph, pw, on_robot)
 
 
-def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int) -> None:
+def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int, on_robot: bool = False) -> None:
     wall = 8.0
     rays = _rays()
     fs = np.full((BALL_H, BALL_W), wall - 0.1, dtype=np.float32)
     v0, u0 = int(rng.integers(4, BALL_H - 4 - ph)), int(rng.integers(4, BALL_W - 4 - pw))
-    # the ball's centre on a ray through the patch (or near it), wholly in front of the wall
+    # the surface behind the ball: the wall, or the robot's (a rectangle around the patch)
+    end = fs.copy()
+    front = wall
+    if on_robot:
+        front = rng.uniform(1.2 + 1.5 * size, wall - 0.5)
+        end[max(v0 - 3, 0) : v0 + ph + 3, max(u0 - 3, 0) : u0 + pw + 3] = front - 0.1
+    # the ball's centre on a ray through the patch (or near it), wholly in front of the surface
     pv, pu = v0 + rng.uniform(-1.5, ph + 0.5), u0 + rng.uniform(-1.5, pw + 0.5)
-    zc = rng.uniform(NEAR + size, wall - 0.1 - size / 2)
+    zc = rng.uniform(NEAR + size, front - 0.1 - size / 2)
     centre = np.array([(pu - BALL_C) / BALL_F, (pv - BALL_C) / BALL_F, 1.0]) * zc
     r = size / 2
     # ray-ball hits (rays are d = rays[v, u], points t * d, z-depth t)
@@ -154,8 +186,7 @@ def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int) ->
     disc = b * b - 4 * a * c
     hit = (disc >= 0).reshape(BALL_H, BALL_W)
     t_hit = ((-b - np.sqrt(np.maximum(disc, 0))) / (2 * a)).reshape(BALL_H, BALL_W)
-    free = np.where(hit, t_hit - 0.05, fs).astype(np.float32)
-    end = fs.copy()
+    free = np.where(hit, np.minimum(t_hit - 0.05, end), end).astype(np.float32)
     invalid = np.zeros((BALL_H, BALL_W), dtype=bool)
     free[v0 : v0 + ph, u0 : u0 + pw] = NEAR
     invalid[v0 : v0 + ph, u0 : u0 + pw] = True

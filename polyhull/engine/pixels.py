@@ -559,13 +559,22 @@ def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, 
                         seen[qv, qu] = True
                         stack = push_row(stack, ns, (qv, qu))
                         ns += 1
-                elif fs[qv, qu] <= near or free[qv, qu] < fs[qv, qu]:
+                elif not _explained(free[qv, qu], end[qv, qu], fs[qv, qu], invalid[qv, qu], near):
                     closed = False
     if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
         for c in range(nc):
             out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
             n_out += 1
     return stack, comp, out, n_out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _explained(free, end, fs, invalid, near):  # pragma: no cover - compiled
+    """A pixel around a small gap: it reads the static scene (free to its static free depth),
+    or a reading explained by the robot (valid, freeing something, no segment behind it)."""
+    if fs > near and free >= fs:
+        return True
+    return not invalid and free > near and free >= end
 
 
 def small_gaps(
@@ -578,14 +587,16 @@ def small_gaps(
     reading in front of the background is an observation (a hand seen through a gap) and
     is never filled. Their segments (``free < end``) are grouped into 8-connected
     clusters. When every pixel around a cluster reads the static scene (free to its static
-    free depth), an object in the cluster's segments is walled in by free pixel
-    footprints, or reaches beyond them only into the static region behind them: its
-    cross-section in the cluster's rays is under ``(extent + 2) px * z / f`` at the
-    cluster's farthest segment end z. When that is under ``size`` on both image axes, the
-    cluster cannot hide an object the system is declared to detect (its detection
-    capability) that shows no reading at all: a dropout patch, out-of-range pixels.
-    Clusters at the image border, next to pixels that see nothing, or next to the robot,
-    a person or a flying pixel, are never small gaps.
+    free depth) or the robot (a valid reading explained by the padded robot: free to its
+    shadow start, no segment), an object in the cluster's segments is walled in by free
+    pixel footprints, or reaches beyond them only into the static region or the robot's
+    shadow behind them: its cross-section in the cluster's rays is under ``(extent + 2) px
+    * z / f`` at the cluster's farthest segment end z (on the robot's image, its shadow
+    start: the segments never run behind it). When that is under ``size`` on both image
+    axes, the cluster cannot hide an object the system is declared to detect (its
+    detection capability) that shows no reading at all: a dropout patch, out-of-range
+    pixels. Clusters at the image border, next to pixels that see nothing, or next to a
+    person or a flying pixel (a reading with a segment), are never small gaps.
     """
     out = np.zeros(free.shape, dtype=bool)
     vu = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
