@@ -227,6 +227,22 @@ def _toward_camera(x):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _in_front(d, t, near, far):  # pragma: no cover - compiled
+    """A valid reading ``d`` in front of its static band (lower bound ``t``)."""
+    return d >= near and d <= far and d < t
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1):  # pragma: no cover - compiled
+    """Run pixel (v, u)'s segment to the empty cell's free depth ``fe`` (or the robot's
+    shadow start when nearer), never shortening it."""
+    e32 = fe[v, u]
+    if v >= sv0 and v <= sv1 and u >= su0 and u <= su1:
+        e32 = min(e32, shadow[v, u])
+    out_end[v, u] = max(out_end[v, u], e32)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _static_end(fs, shadow, v, u, sv0, sv1, su0, su1):  # pragma: no cover - compiled
     """A static pixel's segment end: ``f_s``, or the robot's shadow start when nearer (read
     only inside the shadow rectangle ``[su0, su1] x [sv0, sv1]``)."""
@@ -357,8 +373,11 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                 changed[v // BLOCK, (c1 - 1) // BLOCK] = True
     # a surface seen in front of the band (a valid reading there, and in all 8 neighbours,
     # not an isolated flying pixel) hides what the empty cell shows the pixel up to its free
-    # depth fe: the segment runs there (or to the shadow start when nearer)
-    if not is_color:
+    # depth fe: the segment runs there (or to the shadow start when nearer); so does the
+    # surface's border, a valid reading in front of the band next to its interior (a
+    # foot's silhouette, with the floor beside it in the band)
+    if not is_color and n_seg > 0:
+        surface = np.zeros((H, W), dtype=np.bool_)
         for tv in range(out_tiles.shape[0]):
             for tu in range(out_tiles.shape[1]):
                 if not out_tiles[tv, tu]:
@@ -370,13 +389,26 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                         whole = True
                         for qv in range(v - 1, v + 2):
                             for qu in range(u - 1, u + 2):
-                                dq = depth[qv, qu]
-                                whole &= dq >= near and dq <= far and dq < T[qv, qu]
+                                whole &= _in_front(depth[qv, qu], T[qv, qu], near, far)
                         if whole:
-                            e32 = fe[v, u]
-                            if v >= sv0 and v <= sv1 and u >= su0 and u <= su1:
-                                e32 = min(e32, shadow[v, u])
-                            out_end[v, u] = max(out_end[v, u], e32)
+                            surface[v, u] = True
+                            _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+        for tv in range(out_tiles.shape[0]):
+            for tu in range(out_tiles.shape[1]):
+                if not out_tiles[tv, tu]:
+                    continue
+                for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
+                    for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
+                        if surface[v, u] or fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                            continue
+                        if not _in_front(depth[v, u], T[v, u], near, far):
+                            continue
+                        border = False
+                        for qv in range(v - 1, v + 2):
+                            for qu in range(u - 1, u + 2):
+                                border |= surface[qv, qu]
+                        if border:
+                            _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
     # a candidate edge wedge runs to its own free depth where something is seen next to it:
     # a valid reading with a segment, not at a static edge, within WEDGE_REACH px
     for w in range(wedge_vu.shape[0]):
