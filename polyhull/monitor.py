@@ -57,7 +57,7 @@ from .engine.dynamic_rules import (
     judge_dynamic,
     sheets_under,
 )
-from .engine.edge_wedges import EdgeWedges, robot_boxes
+from .engine.edge_wedges import EdgeWedges, SheetTiles, robot_boxes
 from .engine.memory import MEMORY_PIECE, ShadowMemory, seen_parts, within_reach
 from .engine.pieces import (
     CameraStack,
@@ -395,6 +395,11 @@ class Monitor:
         ]
         # the edge pixels' wedges, projected into the other cameras (built once)
         self._edge_wedges = EdgeWedges.build(self.static.cameras)
+        # the band sheets' tiles, projected into the other cameras (built once)
+        self._sheet_tiles = SheetTiles.build(
+            self.static.cameras, cell.reconstruction.tile, cell.plausibility.floor_shell_margin,
+            cell.plausibility.floor_shell_height,
+        )
         # the static free depth and its pyramids, for the tests of M (built once)
         self._free_static = ImageStack(self._stack, fill=None)
         for i, s in enumerate(self.static.cameras):
@@ -710,7 +715,7 @@ class Monitor:
         raster_done = [t0] * len(cell.cameras)
 
         # where each camera sees the padded robot (the edge wedges its shadow may meet)
-        boxes = robot_boxes(cell.cameras, np.concatenate(padded_world)) if padded_world else [None] * len(cell.cameras)
+        boxes = robot_boxes(cell.cameras, padded_world)
 
         def camera(i: int) -> tuple[RobotRaster | None, _CameraPixels]:
             cam = cell.cameras[i]
@@ -719,7 +724,12 @@ class Monitor:
                 raster = rasterize_robot(cam, padded_world, self._padded, raster_bufs[cam.name])  # type: ignore[arg-type]
             raster_done[i] = time.perf_counter()
             return raster, self._camera_pixels(
-                i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids, self._edge_wedges.ends(i, boxes)
+                i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids, self._edge_wedges.ends(i, boxes),
+                (
+                    self._sheet_tiles.candidates(i, boxes), self._sheet_tiles.reach(i),
+                    self._sheet_tiles.depths(i), self._sheet_tiles.ends(i), self._sheet_tiles.margin,
+                    self._sheet_tiles.lift,
+                ),
             )
 
         done = share(self._pool, camera, range(len(cell.cameras)))
@@ -1010,10 +1020,12 @@ class Monitor:
         pyramids: PyramidStack,
         end_pyramids: PyramidStack,
         wedges: tuple[np.ndarray, np.ndarray],
+        sheets: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float],
     ) -> _CameraPixels:
         """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
         (thread-safe: it writes only camera ``i``'s images; ``wedges``: its edge pixels
-        whose segment runs to their own free depth this cycle)."""
+        whose segment runs to their own free depth this cycle; ``sheets``: its candidate
+        sheet tiles, their reach and depths, and the margin)."""
         cell = self.cell
         cam, s = cell.cameras[i], self.static.cameras[i]
         depth = usable.get(cam.name)
@@ -1033,6 +1045,7 @@ class Monitor:
             buffers=buffers,
             wedges=wedges,
             free_empty=s.free_empty,
+            sheets=sheets,
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:

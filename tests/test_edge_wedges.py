@@ -94,7 +94,7 @@ def test_every_wedge_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, S
         if trial == 0:
             q = np.asarray(monitor.cell.robot.q, dtype=np.float64)
         world = padded.world(robot.link_transforms(q))
-        boxes = robot_boxes(cams, np.concatenate(world))
+        boxes = robot_boxes(cams, world)
         rasters = [rasterize_robot(c, world, padded) for c in cams]
         for i, s in enumerate(monitor.static.cameras):
             chosen = {(int(a), int(b)) for a, b in wedges.ends(i, boxes)[0]}

@@ -1,4 +1,4 @@
-"""Edge wedges: where a static edge's widened band meets another camera's robot shadow.
+"""Edge wedges and sheet tiles: where a static band meets another camera's robot shadow.
 
 At a depth camera's static edge the band is the pixel's 3 x 3 neighbourhood's (flying
 pixels, :mod:`polyhull.engine.static_model`), so a reading anywhere between the nearer and
@@ -19,9 +19,20 @@ other cameras carve it like any other). Elsewhere the wedge changes nothing: a w
 the other cameras see free with the robot is free, and one they do not see even in the
 empty cell lies in ``C_static``. The test is conservative, per cycle and per camera pair:
 the image rectangle of the wedge's eight corners (its pixel's corners at both depths,
-projected once) against the rectangle of the padded robot's vertices, and the wedge's
-farthest depth against the robot's nearest, in the other camera (a colour camera's robot
-hides its whole ray). About 1,000 edge pixels a camera, a few comparisons each.
+projected once) against the rectangle of each padded robot piece's vertices, and the
+wedge's farthest depth against the piece's nearest, in the other camera (a colour
+camera's robot hides its whole ray). About 1,000 edge pixels a camera, against 15 pieces.
+
+The same holds away from edges, thinner: a static pixel's band sheet, from ``f_s`` to the
+empty cell's free depth ``B - tau(B)``, is what the empty cell shows the camera, and a
+foot lying in it is read as the surface (static). Where another camera's robot shadow
+crosses the sheet, the foot is not M, and only that camera's sheet holds it. So per
+tile of the image (:class:`SheetTiles`), the sheet's box is projected into the other
+cameras once, and each cycle the tiles whose sheet may meet another camera's robot
+shadow are candidates; the pixel classification runs their segments to ``B - tau(B)``
+near a surface seen in front of the band (a person: within the floor shell's lateral
+margin of it, :mod:`polyhull.engine.pixels`). Elsewhere such a sheet is the floor's noise
+under the robot's shadows, which the floor-shell rule would remove.
 """
 
 from __future__ import annotations
@@ -29,50 +40,54 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import NamedTuple
 
+import numba as nb
 import numpy as np
 
 from ..camera import Camera
 
-__all__ = ["EdgeWedges", "RobotBox", "robot_boxes"]
+__all__ = ["EdgeWedges", "SheetTiles", "robot_boxes"]
 
 
-class RobotBox(NamedTuple):
-    """The padded robot in one camera's image: the pixel rectangle (u0, u1, v0, v1) of its
-    vertices (the whole image when a vertex is not in front of the camera) and its nearest
-    depth [m] (0 for a colour camera, whose robot hides the whole ray)."""
-
-    u0: float
-    u1: float
-    v0: float
-    v1: float
-    zmin: float
-
-
-def robot_boxes(cameras: Sequence[Camera], vertices: np.ndarray) -> list[RobotBox | None]:
-    """Per camera, the :class:`RobotBox` of the padded robot's world ``vertices`` (N, 3), or
-    None where the robot is wholly outside the image (it shadows nothing there)."""
-    out: list[RobotBox | None] = []
-    vt = np.asarray(vertices, dtype=np.float64).T
+def robot_boxes(cameras: Sequence[Camera], pieces: Sequence[np.ndarray]) -> list[np.ndarray | None]:
+    """Per camera, the padded robot's pieces (world hull vertices, (K_i, 3) each) in its
+    image: (P, 5) rows u0, u1, v0, v1 (the pixel rectangle of a piece's vertices, grown by
+    two pixels: the raster covers a pixel whose square, grown by one, meets the piece; the
+    whole image when a vertex is not in front of the camera) and zmin (the piece's nearest
+    depth less twice the depth tolerance there, where the raster's shadow may start [m];
+    0 for a colour camera, whose robot hides the whole ray);
+    None where no piece is in the image (the robot shadows nothing there). A piece's shadow
+    lies in its rectangle, beyond its nearest depth: the pieces' boxes bound the robot's
+    shadow far more tightly than one box of the whole arm."""
+    out: list[np.ndarray | None] = []
+    if not len(pieces):
+        return [None] * len(cameras)
+    sizes = np.array([len(p) for p in pieces])
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    vt = np.concatenate(pieces).T
     for cam in cameras:
         H, W = cam.shape
-        if len(vertices) == 0:
-            out.append(None)
-            continue
         T = cam.T_camera_world
         pc = T[:3, :3] @ vt + T[:3, 3:4]  # (3, N): rows reduce fast
         z = pc[2]
-        if z.min() <= 1e-9:
-            out.append(RobotBox(-np.inf, np.inf, -np.inf, np.inf, 0.0))
-            continue
-        x, y = pc[0] / z, pc[1] / z
+        behind = np.minimum.reduceat(z, starts) <= 1e-9
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = pc[0] / z, pc[1] / z
         k = cam.intrinsics
-        x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
-        u0, u1 = k.fx * x0 + k.cx - 1.0, k.fx * x1 + k.cx + 1.0
-        v0, v1 = k.fy * y0 + k.cy - 1.0, k.fy * y1 + k.cy + 1.0
-        if u1 < -0.5 or v1 < -0.5 or u0 > W - 0.5 or v0 > H - 0.5:
-            out.append(None)
-            continue
-        out.append(RobotBox(float(u0), float(u1), float(v0), float(v1), 0.0 if cam.kind == "color" else float(np.min(z))))
+        zmin = np.minimum.reduceat(z, starts)
+        b = np.column_stack(
+            [
+                k.fx * np.minimum.reduceat(x, starts) + k.cx - 2.0,
+                k.fx * np.maximum.reduceat(x, starts) + k.cx + 2.0,
+                k.fy * np.minimum.reduceat(y, starts) + k.cy - 2.0,
+                k.fy * np.maximum.reduceat(y, starts) + k.cy + 2.0,
+                zmin - 2.0 * cam.tau(np.maximum(zmin, 0.0)),
+            ]
+        )
+        b[behind] = np.array([-np.inf, np.inf, -np.inf, np.inf, 0.0])
+        if cam.kind == "color":
+            b[:, 4] = 0.0
+        seen = behind | ~((b[:, 1] < -0.5) | (b[:, 3] < -0.5) | (b[:, 0] > W - 0.5) | (b[:, 2] > H - 0.5))
+        out.append(np.ascontiguousarray(b[seen]) if seen.any() else None)
     return out
 
 
@@ -105,19 +120,7 @@ class EdgeWedges:
             own = np.asarray(s.own_free, dtype=np.float64)  # type: ignore[attr-defined]
             v, u = np.nonzero(np.asarray(s.edge) & (own > fs))  # type: ignore[attr-defined]
             corners = _corners(cam, u, v, fs[v, u], own[v, u])  # (n, 8, 3) world
-            others = np.array([j for j in range(len(cams)) if j != i], dtype=np.int64)
-            boxes = np.empty((5, len(others), len(v)))
-            for n, j in enumerate(others):
-                uv, z = cams[j].project(corners.reshape(-1, 3))
-                uv = uv.reshape(-1, 8, 2)
-                z = z.reshape(-1, 8)
-                behind = np.any(z <= 1e-9, axis=1)
-                with np.errstate(invalid="ignore"):
-                    b = np.stack(
-                        [uv[:, :, 0].min(axis=1), uv[:, :, 0].max(axis=1), uv[:, :, 1].min(axis=1), uv[:, :, 1].max(axis=1), z.max(axis=1)]
-                    )
-                b[:, behind] = np.array([-np.inf, np.inf, -np.inf, np.inf, np.inf])[:, None]
-                boxes[:, n] = b
+            others, boxes = _project(cams, i, corners)
             wedges.append(_Wedges(np.column_stack([v, u]).astype(np.int64), own[v, u].astype(np.float32), others, boxes))
         return cls(wedges)
 
@@ -125,27 +128,196 @@ class EdgeWedges:
         """Camera ``i``'s number of edge wedges."""
         return len(self._wedges[i].end)
 
-    def ends(self, i: int, robots: Sequence[RobotBox | None]) -> tuple[np.ndarray, np.ndarray]:
+    def ends(self, i: int, robots: Sequence[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray]:
         """Camera ``i``'s edge pixels (m, 2) as (v, u) whose wedge may meet another camera's
         robot shadow this cycle (``robots``: :func:`robot_boxes`), and their segment end
         ``own_free`` (m,) [m]."""
         w = self._wedges[i]
-        seen = [n for n, j in enumerate(w.others) if robots[j] is not None]
-        if not seen or not len(w.end):
-            return w.vu[:0], w.end[:0]
-        r = np.array([robots[w.others[n]] for n in seen]).T[:, :, None]  # (5, J', 1)
-        b = w.boxes[:, seen] if len(seen) < len(w.others) else w.boxes
-        hit = ((b[1] >= r[0]) & (b[0] <= r[1]) & (b[3] >= r[2]) & (b[2] <= r[3]) & (b[4] >= r[4])).any(axis=0)
+        hit = _meets(w.others, w.boxes, robots)
         return w.vu[hit], w.end[hit]
+
+
+class SheetTiles:
+    """Every depth camera's image tiles whose band sheet (``f_s`` to ``B - tau(B)``) is not
+    empty, projected into the other cameras once, with the reach of a person's feet."""
+
+    def __init__(
+        self, tiles: list[_Wedges], reach: list[np.ndarray], depths: list[np.ndarray], ends: list[np.ndarray],
+        shapes: list[tuple[int, int]], margin: float, lift: float,
+    ) -> None:
+        self._tiles = tiles
+        self._reach = reach
+        self._depths = depths
+        self._ends = ends
+        self._shapes = shapes
+        self.margin = margin
+        self.lift = lift
+
+    @classmethod
+    def build(cls, statics: Sequence[object], tile: int, margin: float, height: float) -> SheetTiles:
+        """From the static cameras (their ``camera``, ``edge``, ``free_static`` and
+        ``free_empty``), for tiles of ``tile`` px and the floor shell's lateral ``margin``
+        [m]: a tile's reach [tiles] is the margin in its image at its nearest sheet depth,
+        plus one tile (the surface seen may lie anywhere in its own tile); in depth, a
+        surface seen within the margin of the sheet's depths reaches it. Only a lower leg
+        reaches: a surface seen within ``lift = height + margin`` [m] in front of its
+        reference (``height``: the floor shell's; the feet lie in the shell). A pixel's
+        sheet is only its part outside ``C_static`` (which holds the rest, and the
+        floor-shell rule keeps it under a person): it ends at :func:`_sheet_ends`."""
+        cams = [s.camera for s in statics]  # type: ignore[attr-defined]
+        tiles, reach, depths, ends, shapes = [], [], [], [], []
+        for i, s in enumerate(statics):
+            cam: Camera = s.camera  # type: ignore[attr-defined]
+            H, W = cam.shape
+            nv, nu = -(-H // tile), -(-W // tile)
+            fs = np.asarray(s.free_static, dtype=np.float64)  # type: ignore[attr-defined]
+            fe = _sheet_ends(statics, i)
+            sheet = fe > fs
+            pad = ((0, nv * tile - H), (0, nu * tile - W))
+            z0 = np.pad(np.where(sheet, fs, np.inf), pad, constant_values=np.inf)
+            z1 = np.pad(np.where(sheet, fe, -np.inf), pad, constant_values=-np.inf)
+            z0 = z0.reshape(nv, tile, nu, tile).min(axis=(1, 3))
+            z1 = z1.reshape(nv, tile, nu, tile).max(axis=(1, 3))
+            tv, tu = np.nonzero(np.isfinite(z0))
+            # the tile's corners as a pixel block: (u0 - 0.5 .. u1 + 0.5) at both depths
+            u_lo, v_lo = tu * tile, tv * tile
+            u_hi, v_hi = np.minimum(u_lo + tile, W) - 1, np.minimum(v_lo + tile, H) - 1
+            corners = _block_corners(cam, u_lo, u_hi, v_lo, v_hi, z0[tv, tu], z1[tv, tu])
+            others, boxes = _project(cams, i, corners)
+            k = cam.intrinsics
+            r = np.zeros((nv, nu), dtype=np.int64)
+            r[tv, tu] = np.ceil(margin * max(k.fx, k.fy) / (np.maximum(z0[tv, tu], cam.near) * tile)).astype(np.int64) + 1
+            tiles.append(_Wedges(np.column_stack([tv, tu]).astype(np.int64), z1[tv, tu].astype(np.float32), others, boxes))
+            reach.append(np.minimum(r, max(nv, nu)))
+            depths.append(np.stack([z0, z1]))
+            ends.append(fe.astype(np.float32))
+            shapes.append((nv, nu))
+        return cls(tiles, reach, depths, ends, shapes, float(margin), float(height + margin))
+
+    def reach(self, i: int) -> np.ndarray:
+        """Camera ``i``'s (n_v, n_u) reach of every tile [tiles] (0: no sheet)."""
+        return self._reach[i]
+
+    def ends(self, i: int) -> np.ndarray:
+        """Camera ``i``'s (H, W) float32 end of every pixel's sheet [m] (``f_s``: none)."""
+        return self._ends[i]
+
+    def depths(self, i: int) -> np.ndarray:
+        """Camera ``i``'s (2, n_v, n_u) least and greatest depth of every tile's sheet [m]
+        (+inf and -inf: none)."""
+        return self._depths[i]
+
+    def candidates(self, i: int, robots: Sequence[np.ndarray | None]) -> np.ndarray:
+        """Camera ``i``'s (n_v, n_u) tiles whose sheet may meet another camera's robot
+        shadow this cycle (``robots``: :func:`robot_boxes`)."""
+        t = self._tiles[i]
+        out = np.zeros(self._shapes[i], dtype=np.bool_)
+        hit = _meets(t.others, t.boxes, robots)
+        out[t.vu[hit, 0], t.vu[hit, 1]] = True
+        return out
+
+
+SHEET_SAMPLES = 17
+"""Depths sampled along each pixel's sheet to find its part outside ``C_static``."""
+
+
+def _sheet_ends(statics: Sequence[object], i: int) -> np.ndarray:
+    """(H, W) camera ``i``'s sheet ends [m]: the farthest of ``SHEET_SAMPLES`` depths from
+    ``f_s`` to ``B - tau(B)`` that another camera frees in the empty cell (outside
+    ``C_static``), one sample step farther (at most ``B - tau(B)``); ``f_s`` where none is
+    (the whole sheet lies in ``C_static``), at edge pixels (their wedges) and for a colour
+    camera. The samples resolve the sheet to a sixteenth of its depth (1 to 2 cm)."""
+    s = statics[i]
+    cam: Camera = s.camera  # type: ignore[attr-defined]
+    fs = np.asarray(s.free_static, dtype=np.float64)  # type: ignore[attr-defined]
+    fe = np.asarray(s.free_empty, dtype=np.float64)  # type: ignore[attr-defined]
+    out = fs.copy()
+    if cam.kind == "color":
+        return out
+    v, u = np.nonzero((fe > fs) & ~np.asarray(s.edge))  # type: ignore[attr-defined]
+    z0, z1 = fs[v, u], fe[v, u]
+    step = (z1 - z0) / (SHEET_SAMPLES - 1)
+    k = cam.intrinsics
+    last = np.full(len(v), -1)
+    for n in range(SHEET_SAMPLES):
+        z = z0 + n * step
+        pts = cam.camera_to_world(np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z]))
+        freed = np.zeros(len(v), dtype=bool)
+        for j, sj in enumerate(statics):
+            if j == i:
+                continue
+            cj: Camera = sj.camera  # type: ignore[attr-defined]
+            uv, zj = cj.project(pts)
+            with np.errstate(invalid="ignore"):
+                px = np.floor(uv + 0.5)
+            H, W = cj.shape
+            inside = (zj > 0) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
+            idx = np.nonzero(inside)[0]
+            f = np.asarray(sj.free_static)[px[idx, 1].astype(np.int64), px[idx, 0].astype(np.int64)]  # type: ignore[attr-defined]
+            freed[idx[zj[idx] < f]] = True
+        last[freed] = n
+    some = last >= 0
+    out[v[some], u[some]] = np.minimum(z0[some] + (last[some] + 1) * step[some], z1[some])
+    return out
+
+
+def _project(cams: Sequence[Camera], i: int, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The other cameras' indices (J,) and, in each of their images, the rectangle and
+    farthest depth of each box's corners ``corners`` (n, 8, 3) world, (5, J, n): u0, u1,
+    v0, v1, zmax (unbounded when a corner is not in front of that camera)."""
+    others = np.array([j for j in range(len(cams)) if j != i], dtype=np.int64)
+    boxes = np.empty((5, len(others), len(corners)))
+    for n, j in enumerate(others):
+        uv, z = cams[j].project(corners.reshape(-1, 3))
+        uv = uv.reshape(-1, 8, 2)
+        z = z.reshape(-1, 8)
+        behind = np.any(z <= 1e-9, axis=1)
+        with np.errstate(invalid="ignore"):
+            b = np.stack(
+                [uv[:, :, 0].min(axis=1), uv[:, :, 0].max(axis=1), uv[:, :, 1].min(axis=1), uv[:, :, 1].max(axis=1), z.max(axis=1)]
+            )
+        b[:, behind] = np.array([-np.inf, np.inf, -np.inf, np.inf, np.inf])[:, None]
+        boxes[:, n] = b
+    return others, boxes
+
+
+def _meets(others: np.ndarray, boxes: np.ndarray, robots: Sequence[np.ndarray | None]) -> np.ndarray:
+    """(n,) the boxes (:func:`_project`) that may meet another camera's robot shadow: their
+    rectangle overlaps a robot piece's (:func:`robot_boxes`) and their farthest depth is
+    beyond its nearest."""
+    out = np.zeros(boxes.shape[2], dtype=np.bool_)
+    for n, j in enumerate(others):
+        r = robots[j]
+        if r is not None:
+            _meets_kernel(boxes[:, n], r, out)
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _meets_kernel(b, r, out):  # pragma: no cover - compiled
+    """``out[t] |= box t (``b`` (5, n)) meets a piece box of ``r`` (P, 5)``."""
+    for t in range(b.shape[1]):
+        if out[t]:
+            continue
+        for p in range(r.shape[0]):
+            if b[1, t] >= r[p, 0] and b[0, t] <= r[p, 1] and b[3, t] >= r[p, 2] and b[2, t] <= r[p, 3] and b[4, t] >= r[p, 4]:
+                out[t] = True
+                break
+
+
+def _block_corners(
+    cam: Camera, u0: np.ndarray, u1: np.ndarray, v0: np.ndarray, v1: np.ndarray, z0: np.ndarray, z1: np.ndarray
+) -> np.ndarray:
+    """(n, 8, 3) world points: the corners of the pixel blocks [u0, u1] x [v0, v1] at
+    z-depths ``z0`` and ``z1``."""
+    k = cam.intrinsics
+    us = np.stack([u0 - 0.5, u1 + 0.5, u1 + 0.5, u0 - 0.5] * 2, axis=1)
+    vs = np.stack([v0 - 0.5, v0 - 0.5, v1 + 0.5, v1 + 0.5] * 2, axis=1)
+    z = np.column_stack([z0, z0, z0, z0, z1, z1, z1, z1])
+    pts = np.stack([(us - k.cx) / k.fx * z, (vs - k.cy) / k.fy * z, z], axis=2)
+    return cam.camera_to_world(pts.reshape(-1, 3)).reshape(-1, 8, 3)
 
 
 def _corners(cam: Camera, u: np.ndarray, v: np.ndarray, z0: np.ndarray, z1: np.ndarray) -> np.ndarray:
     """(n, 8, 3) world points: the corners of pixels (u, v) at z-depths ``z0`` and ``z1``."""
-    k = cam.intrinsics
-    du = np.array([-0.5, 0.5, 0.5, -0.5, -0.5, 0.5, 0.5, -0.5])
-    dv = np.array([-0.5, -0.5, 0.5, 0.5, -0.5, -0.5, 0.5, 0.5])
-    z = np.column_stack([z0, z0, z0, z0, z1, z1, z1, z1])
-    x = (u[:, None] + du - k.cx) / k.fx * z
-    y = (v[:, None] + dv - k.cy) / k.fy * z
-    pts = np.stack([x, y, z], axis=2)
-    return cam.camera_to_world(pts.reshape(-1, 3)).reshape(-1, 8, 3)
+    return _block_corners(cam, u, u, v, v, z0, z1)

@@ -192,6 +192,8 @@ class PixelBuffers:
         rect: (u0, u1, v0, v1) where ``end`` may differ from ``f_s`` (empty: u1 < u0).
         wedges: (m, 2) the edge pixels (v, u) whose ``end`` is their own free depth
             (:mod:`polyhull.engine.edge_wedges`); ``end`` differs from ``f_s`` there too.
+        sheets: (n_v, n_u) the tiles whose ``end`` is the empty cell's free depth (sheet
+            tiles), or None before the first classification.
     """
 
     def __init__(self, static: StaticClasses, free_static: ArrayF32, free: ArrayF32 | None = None, end: ArrayF32 | None = None) -> None:
@@ -208,6 +210,7 @@ class PixelBuffers:
         self.end_changed = np.zeros_like(self.changed)
         self.rect = np.array([0, -1, 0, -1], dtype=np.int64)
         self.wedges = _NO_WEDGES
+        self.sheets: np.ndarray | None = None
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -224,6 +227,14 @@ def _toward_camera(x):  # pragma: no cover - compiled
     if f > x:
         f = np.nextafter(f, np.float32(-np.inf))
     return f
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _mark_tile(changed, tv, tu, tile, H, W):  # pragma: no cover - compiled
+    """Mark the blocks of ``changed`` that tile (tv, tu) of edge ``tile`` covers."""
+    for bv in range(tv * tile // BLOCK, (min((tv + 1) * tile, H) - 1) // BLOCK + 1):
+        for bu in range(tu * tile // BLOCK, (min((tu + 1) * tile, W) - 1) // BLOCK + 1):
+            changed[bv, bu] = True
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -252,7 +263,7 @@ def _static_end(fs, shadow, v, u, sv0, sv1, su0, su1):  # pragma: no cover - com
 
 
 @nb.njit(cache=True, nogil=True)
-def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, rect, prev_rect, wedge_vu, wedge_end, prev_wedge_vu, applied, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
+def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, rect, prev_rect, wedge_vu, wedge_end, prev_wedge_vu, applied, sheet_cand, sheet_reach, sheet_z, sheet_end, margin, lift, prev_sheet, out_sheet, near, far, a, tmin, is_color, out_free, out_end, out_invalid, tile, out_tiles, dirty, changed):  # pragma: no cover - compiled
     """Classify a frame into buffers holding the last classification (:class:`PixelBuffers`):
     only the row chunks holding a reading not surely in the band (the packed ``band`` of
     :class:`StaticClasses`, then ``T``/``U``: every reading is "in the band" where ``f_s <=
@@ -270,11 +281,17 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
     within ``WEDGE_REACH`` px of a valid non-edge reading with a segment end their
     segments at ``wedge_end`` (or the robot's shadow start), so a reading in front of
     their own band has a segment there (``applied``, (m,) bool, says which); the last
-    cycle's applied ones, ``prev_wedge_vu``, are put back first. ``dirty`` and ``changed``
-    are updated (see :class:`PixelBuffers`); ``changed`` also marks where ``end`` was
-    written."""
+    cycle's applied ones, ``prev_wedge_vu``, are put back first. The candidate sheet tiles
+    ``sheet_cand`` (:class:`polyhull.engine.edge_wedges.SheetTiles`) within their
+    ``sheet_reach`` [tiles] of a tile holding such a surface not on the robot's image and
+    within ``lift`` [m] in front of the reference (a lower leg), at a depth within
+    ``margin`` of the sheet's depths ``sheet_z`` (2, n_v, n_u), end every non-edge pixel's
+    segment at ``sheet_end``, its sheet's part outside ``C_static`` (``out_sheet`` says
+    which; the last cycle's, ``prev_sheet``, are put back first). ``dirty`` and ``changed`` are updated (see
+    :class:`PixelBuffers`); ``changed`` also marks where ``end`` was written."""
     H, W = depth.shape
     out_tiles[:, :] = False
+    out_sheet[:, :] = False
     changed[:, :] = False
     su0, su1, sv0, sv1 = rect[0], rect[1], rect[2], rect[3]
     n_invalid = 0
@@ -289,6 +306,14 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
     for w in range(prev_wedge_vu.shape[0]):  # the last cycle's edge wedges
         v, u = prev_wedge_vu[w, 0], prev_wedge_vu[w, 1]
         out_end[v, u] = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
+    for tv in range(prev_sheet.shape[0]):  # the last cycle's sheet tiles
+        for tu in range(prev_sheet.shape[1]):
+            if prev_sheet[tv, tu]:
+                for v in range(tv * tile, min((tv + 1) * tile, H)):
+                    for u in range(tu * tile, min((tu + 1) * tile, W)):
+                        if not edge[v, u]:
+                            out_end[v, u] = _static_end(fs, shadow, v, u, sv0, sv1, su0, su1)
+                _mark_tile(changed, tv, tu, tile, H, W)
     for v in range(H):
         for ci in range(dirty.shape[1]):
             c0 = ci * CHUNK
@@ -378,6 +403,10 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
     # foot's silhouette, with the floor beside it in the band)
     if not is_color and n_seg > 0:
         surface = np.zeros((H, W), dtype=np.bool_)
+        # the depths of the surfaces off the robot, per tile (lo > hi: none)
+        seen_lo = np.full(out_tiles.shape, np.inf)
+        seen_hi = np.full(out_tiles.shape, -np.inf)
+        any_seen = False
         for tv in range(out_tiles.shape[0]):
             for tu in range(out_tiles.shape[1]):
                 if not out_tiles[tv, tu]:
@@ -393,6 +422,12 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                         if whole:
                             surface[v, u] = True
                             _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+                            d = np.float64(depth[v, u])
+                            off_robot = not (v >= sv0 and v <= sv1 and u >= su0 and u <= su1 and shadow[v, u] < np.inf)
+                            if off_robot and np.float64(B[v, u]) - d <= lift:
+                                seen_lo[tv, tu] = min(seen_lo[tv, tu], d)
+                                seen_hi[tv, tu] = max(seen_hi[tv, tu], d)
+                                any_seen = True
         for tv in range(out_tiles.shape[0]):
             for tu in range(out_tiles.shape[1]):
                 if not out_tiles[tv, tu]:
@@ -409,6 +444,31 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                                 border |= surface[qv, qu]
                         if border:
                             _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+        # the band sheets another camera's robot shadow may cross, within a person's feet's
+        # reach of a surface seen (the sheet tiles): a foot in the sheet reads as the surface
+        n_tv, n_tu = out_tiles.shape
+        for tv in range(n_tv if any_seen else 0):
+            for tu in range(n_tu):
+                r = sheet_reach[tv, tu]
+                if not sheet_cand[tv, tu] or r <= 0:
+                    continue
+                near_seen = False
+                z0 = sheet_z[0, tv, tu] - margin
+                z1 = sheet_z[1, tv, tu] + margin
+                for qv in range(max(tv - r, 0), min(tv + r + 1, n_tv)):
+                    for qu in range(max(tu - r, 0), min(tu + r + 1, n_tu)):
+                        near_seen |= seen_lo[qv, qu] <= z1 and seen_hi[qv, qu] >= z0
+                if not near_seen:
+                    continue
+                out_sheet[tv, tu] = True
+                _mark_tile(changed, tv, tu, tile, H, W)
+                for v in range(tv * tile, min((tv + 1) * tile, H)):
+                    for u in range(tu * tile, min((tu + 1) * tile, W)):
+                        if edge[v, u] or sheet_end[v, u] <= fs[v, u]:
+                            continue
+                        _surface_end(out_end, sheet_end, shadow, v, u, sv0, sv1, su0, su1)
+                        if out_free[v, u] < out_end[v, u]:
+                            out_tiles[tv, tu] = True
     # a candidate edge wedge runs to its own free depth where something is seen next to it:
     # a valid reading with a segment, not at a static edge, within WEDGE_REACH px
     for w in range(wedge_vu.shape[0]):
@@ -449,6 +509,7 @@ def classify_frame(
     edge: np.ndarray | None = None,
     wedges: tuple[np.ndarray, np.ndarray] | None = None,
     free_empty: ArrayF32 | None = None,
+    sheets: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float] | None = None,
 ) -> PixelClasses:
     """Classify the pixels of one frame (see the module docstring).
 
@@ -481,6 +542,15 @@ def classify_frame(
         free_empty: (H, W) the empty cell's free depth ``B - tau(B)`` [m]
             (:attr:`polyhull.engine.static_model.StaticCamera.free_empty`), where the
             segment of a surface seen in front of the band ends; None: ``free_static``.
+        sheets: ((n_v, n_u) bool, (n_v, n_u) int, (2, n_v, n_u) float, (H, W) float32,
+            margin [m], lift [m]) the tiles whose band sheet may meet another camera's
+            robot shadow this cycle, their reach [tiles] and sheet depths [m], the pixels'
+            sheet ends [m], the floor shell's lateral margin and the depth before the
+            reference within which a surface seen is a lower leg
+            (:class:`polyhull.engine.edge_wedges.SheetTiles`): within its reach of such a
+            surface, seen in front of the band, not on the robot's image, at a depth within
+            the margin of its sheet, such a tile's segments run to their sheet ends. None:
+            none.
     """
     H, W = free_static.shape
     if static is None:
@@ -497,13 +567,24 @@ def classify_frame(
         wedge_vu = np.ascontiguousarray(wedges[0], dtype=np.int64).reshape(-1, 2)
         wedge_end = np.ascontiguousarray(wedges[1], dtype=np.float32)
     applied = np.zeros(len(wedge_vu), dtype=np.bool_)
+    if sheets is None:
+        sheet_cand, sheet_reach = np.zeros(out_tiles.shape, dtype=np.bool_), np.zeros(out_tiles.shape, dtype=np.int64)
+        sheet_z, sheet_end, margin, lift = np.zeros((2, *out_tiles.shape)), free_static, 0.0, 0.0
+    else:
+        sheet_cand, sheet_reach = sheets[0], np.asarray(sheets[1], dtype=np.int64)
+        sheet_z, sheet_end = np.asarray(sheets[2], dtype=np.float64), sheets[3]
+        margin, lift = float(sheets[4]), float(sheets[5])
+    prev_sheet = b.sheets if b.sheets is not None and b.sheets.shape == out_tiles.shape else np.zeros(out_tiles.shape, dtype=np.bool_)
+    out_sheet = np.zeros(out_tiles.shape, dtype=np.bool_)
     n_seg, n_invalid, n_far = _classify(
         depth, static.band, reference, static.lower, static.upper, free_static,
         free_static if free_empty is None else free_empty, static.free0, static.edge,
         static.edge_chunks, shadow_start, rect, b.rect, wedge_vu, wedge_end, b.wedges, applied,
+        sheet_cand, sheet_reach, sheet_z, sheet_end, margin, lift, prev_sheet, out_sheet,
         float(near), float(far), float(tau_a), float(tau_min), bool(is_color), b.free, b.end, b.invalid,
         tile, out_tiles, b.dirty, b.changed,
     )
+    b.sheets = out_sheet
     b.end_changed[:] = b.changed  # the chunks classified (an unexplained pixel's end)
     for u0, u1, v0, v1 in (b.rect, rect):
         if u1 >= u0 and v1 >= v0:
