@@ -162,3 +162,30 @@ def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
         some |= cov
         every &= ~cov | ((z >= r.front[vi, ui]) & (z <= r.back[vi, ui]))
     return some & every
+
+
+def pixel_points(camera: Camera, v: np.ndarray, u: np.ndarray, z0: np.ndarray, z1: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) world points drawn uniformly in the footprints of pixels (v, u), between
+    z-depths ``z0`` and ``z1``."""
+    n = len(v)
+    pv, pu = v + rng.uniform(-0.5, 0.5, n), u + rng.uniform(-0.5, 0.5, n)
+    z = z0 + rng.uniform(0, 1, n) * (z1 - z0)
+    k = camera.intrinsics
+    return camera.camera_to_world(np.column_stack([(pu - k.cx) / k.fx * z, (pv - k.cy) / k.fy * z, z]))
+
+
+def in_raster_shadows(cameras, rasters, i: int, points: np.ndarray) -> list[tuple[int, np.ndarray]]:  # type: ignore[no-untyped-def]
+    """Per camera j other than ``i``: (j, the indices of ``points`` that its robot raster
+    puts in the padded robot's shadow: a covered pixel, at or behind the shadow's start)."""
+    out = []
+    for j, r in enumerate(rasters):
+        if j == i:
+            continue
+        uv, zj = cameras[j].project(points)
+        px = np.floor(uv + 0.5).astype(np.int64)
+        H, W = cameras[j].shape
+        inside = (zj > 0) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
+        idx = np.nonzero(inside)[0]
+        shadowed = r.covered[px[idx, 1], px[idx, 0]] & (zj[idx] >= r.shadow_start[px[idx, 1], px[idx, 0]])
+        out.append((j, idx[shadowed]))
+    return out

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import exactly_possibly_occupied, in_robot_occlusion, make_camera, manifold_contains
+from conftest import (
+    exactly_possibly_occupied,
+    in_raster_shadows,
+    in_robot_occlusion,
+    make_camera,
+    manifold_contains,
+    pixel_points,
+)
 
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
@@ -99,25 +106,13 @@ def test_every_wedge_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, S
         for i, s in enumerate(monitor.static.cameras):
             chosen = {(int(a), int(b)) for a, b in wedges.ends(i, boxes)[0]}
             v, u = np.nonzero(s.edge & (s.own_free > s.free_static))
-            n = 20_000
-            pick = rng.integers(0, len(v), n)
-            pv, pu = v[pick] + rng.uniform(-0.5, 0.5, n), u[pick] + rng.uniform(-0.5, 0.5, n)
-            z0, z1 = s.free_static[v[pick], u[pick]], s.own_free[v[pick], u[pick]]
-            z = z0 + rng.uniform(0, 1, n) * (z1 - z0)
-            k = cams[i].intrinsics
-            pts = cams[i].camera_to_world(np.column_stack([(pu - k.cx) / k.fx * z, (pv - k.cy) / k.fy * z, z]))
-            for j, r in enumerate(rasters):
-                if j == i:
-                    continue
-                uv, zj = cams[j].project(pts)
-                px = np.floor(uv + 0.5).astype(np.int64)
-                H, W = cams[j].shape
-                inside = (zj > 0) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
-                idx = np.nonzero(inside)[0]
-                shadowed = r.covered[px[idx, 1], px[idx, 0]] & (zj[idx] >= r.shadow_start[px[idx, 1], px[idx, 0]])
-                for p in idx[shadowed]:
+            pick = rng.integers(0, len(v), 20_000)
+            vp, up = v[pick], u[pick]
+            pts = pixel_points(cams[i], vp, up, s.free_static[vp, up], s.own_free[vp, up], rng)
+            for j, shadowed in in_raster_shadows(cams, rasters, i, pts):
+                for p in shadowed:
                     hits += 1
-                    assert (int(v[pick[p]]), int(u[pick[p]])) in chosen, (trial, i, j)
+                    assert (int(vp[p]), int(up[p])) in chosen, (trial, i, j)
     assert hits > 50  # the oracle tested something
 
 

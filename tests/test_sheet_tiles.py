@@ -6,7 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import exactly_possibly_occupied, in_robot_occlusion, make_camera, manifold_contains
+from conftest import (
+    exactly_possibly_occupied,
+    in_raster_shadows,
+    in_robot_occlusion,
+    make_camera,
+    manifold_contains,
+    pixel_points,
+)
 
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
@@ -109,24 +116,12 @@ def test_every_sheet_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, S
             chosen = tiles.candidates(i, boxes)
             ends = tiles.ends(i)
             v, u = np.nonzero(ends > s.free_static)
-            n = 40_000
-            pick = rng.integers(0, len(v), n)
-            pv, pu = v[pick] + rng.uniform(-0.5, 0.5, n), u[pick] + rng.uniform(-0.5, 0.5, n)
-            z0, z1 = s.free_static[v[pick], u[pick]], ends[v[pick], u[pick]]
-            z = z0 + rng.uniform(0, 1, n) * (z1 - z0)
-            k = cams[i].intrinsics
-            pts = cams[i].camera_to_world(np.column_stack([(pu - k.cx) / k.fx * z, (pv - k.cy) / k.fy * z, z]))
-            for j, r in enumerate(rasters):
-                if j == i:
-                    continue
-                uv, zj = cams[j].project(pts)
-                px = np.floor(uv + 0.5).astype(np.int64)
-                H, W = cams[j].shape
-                inside = (zj > 0) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
-                idx = np.nonzero(inside)[0]
-                shadowed = idx[r.covered[px[idx, 1], px[idx, 0]] & (zj[idx] >= r.shadow_start[px[idx, 1], px[idx, 0]])]
+            pick = rng.integers(0, len(v), 40_000)
+            vp, up = v[pick], u[pick]
+            pts = pixel_points(cams[i], vp, up, s.free_static[vp, up], ends[vp, up], rng)
+            for j, shadowed in in_raster_shadows(cams, rasters, i, pts):
                 hits += len(shadowed)
-                missed = ~chosen[v[pick[shadowed]] // TILE, u[pick[shadowed]] // TILE]
+                missed = ~chosen[vp[shadowed] // TILE, up[shadowed] // TILE]
                 assert not missed.any(), (trial, i, j, int(missed.sum()))
     assert hits > 100  # the oracle tested something
 

@@ -396,79 +396,16 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
             if now or was:
                 changed[v // BLOCK, c0 // BLOCK] = True
                 changed[v // BLOCK, (c1 - 1) // BLOCK] = True
-    # a surface seen in front of the band (a valid reading there, and in all 8 neighbours,
-    # not an isolated flying pixel) hides what the empty cell shows the pixel up to its free
-    # depth fe: the segment runs there (or to the shadow start when nearer); so does the
-    # surface's border, a valid reading in front of the band next to its interior (a
-    # foot's silhouette, with the floor beside it in the band)
+    # a surface seen in front of the band runs to the empty cell's free depth, and near a
+    # lower leg seen, so do the candidate sheet tiles (:func:`_surfaces`, :func:`_sheets`)
     if not is_color and n_seg > 0:
-        surface = np.zeros((H, W), dtype=np.bool_)
-        # the depths of the surfaces off the robot, per tile (lo > hi: none)
-        seen_lo = np.full(out_tiles.shape, np.inf)
-        seen_hi = np.full(out_tiles.shape, -np.inf)
-        any_seen = False
-        for tv in range(out_tiles.shape[0]):
-            for tu in range(out_tiles.shape[1]):
-                if not out_tiles[tv, tu]:
-                    continue
-                for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
-                    for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
-                        if fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
-                            continue
-                        whole = True
-                        for qv in range(v - 1, v + 2):
-                            for qu in range(u - 1, u + 2):
-                                whole &= _in_front(depth[qv, qu], T[qv, qu], near, far)
-                        if whole:
-                            surface[v, u] = True
-                            _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
-                            d = np.float64(depth[v, u])
-                            off_robot = not (v >= sv0 and v <= sv1 and u >= su0 and u <= su1 and shadow[v, u] < np.inf)
-                            if off_robot and np.float64(B[v, u]) - d <= lift:
-                                seen_lo[tv, tu] = min(seen_lo[tv, tu], d)
-                                seen_hi[tv, tu] = max(seen_hi[tv, tu], d)
-                                any_seen = True
-        for tv in range(out_tiles.shape[0]):
-            for tu in range(out_tiles.shape[1]):
-                if not out_tiles[tv, tu]:
-                    continue
-                for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
-                    for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
-                        if surface[v, u] or fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
-                            continue
-                        if not _in_front(depth[v, u], T[v, u], near, far):
-                            continue
-                        border = False
-                        for qv in range(v - 1, v + 2):
-                            for qu in range(u - 1, u + 2):
-                                border |= surface[qv, qu]
-                        if border:
-                            _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
-        # the band sheets another camera's robot shadow may cross, within a person's feet's
-        # reach of a surface seen (the sheet tiles): a foot in the sheet reads as the surface
-        n_tv, n_tu = out_tiles.shape
-        for tv in range(n_tv if any_seen else 0):
-            for tu in range(n_tu):
-                r = sheet_reach[tv, tu]
-                if not sheet_cand[tv, tu] or r <= 0:
-                    continue
-                near_seen = False
-                z0 = sheet_z[0, tv, tu] - margin
-                z1 = sheet_z[1, tv, tu] + margin
-                for qv in range(max(tv - r, 0), min(tv + r + 1, n_tv)):
-                    for qu in range(max(tu - r, 0), min(tu + r + 1, n_tu)):
-                        near_seen |= seen_lo[qv, qu] <= z1 and seen_hi[qv, qu] >= z0
-                if not near_seen:
-                    continue
-                out_sheet[tv, tu] = True
-                _mark_tile(changed, tv, tu, tile, H, W)
-                for v in range(tv * tile, min((tv + 1) * tile, H)):
-                    for u in range(tu * tile, min((tu + 1) * tile, W)):
-                        if edge[v, u] or sheet_end[v, u] <= fs[v, u]:
-                            continue
-                        _surface_end(out_end, sheet_end, shadow, v, u, sv0, sv1, su0, su1)
-                        if out_free[v, u] < out_end[v, u]:
-                            out_tiles[tv, tu] = True
+        rect4 = (sv0, sv1, su0, su1)
+        seen_lo, seen_hi, any_seen = _surfaces(depth, B, T, fs, fe, shadow, rect4, near, far, lift, out_free, out_end, tile, out_tiles)
+        if any_seen:
+            _sheets(
+                fs, edge, shadow, rect4, sheet_cand, sheet_reach, sheet_z, sheet_end, margin, seen_lo, seen_hi,
+                out_free, out_end, tile, out_tiles, out_sheet, changed,
+            )
     # a candidate edge wedge runs to its own free depth where something is seen next to it:
     # a valid reading with a segment, not at a static edge, within WEDGE_REACH px
     for w in range(wedge_vu.shape[0]):
@@ -487,6 +424,98 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
             n_seg += 1
             out_tiles[v // tile, u // tile] = True
     return n_seg, n_invalid, n_far
+
+
+@nb.njit(cache=True, nogil=True)
+def _surfaces(depth, B, T, fs, fe, shadow, rect, near, far, lift, out_free, out_end, tile, out_tiles):  # pragma: no cover - compiled
+    """A surface seen in front of the band (a valid reading there, and in all 8 neighbours,
+    not an isolated flying pixel) hides what the empty cell shows the pixel up to its free
+    depth ``fe``: the segment runs there (or to the robot's shadow start, inside ``rect``
+    (v0, v1, u0, u1), when nearer); so does the surface's border, a valid reading in front
+    of the band next to its interior (a foot's silhouette, with the floor beside it in the
+    band). Visits the marked tiles. Returns, per tile, the least and greatest depth of the
+    surface pixels off the robot's image within ``lift`` [m] in front of their reference (a
+    lower leg; lo > hi: none), and whether there is any."""
+    H, W = depth.shape
+    sv0, sv1, su0, su1 = rect
+    surface = np.zeros((H, W), dtype=np.bool_)
+    seen_lo = np.full(out_tiles.shape, np.inf)
+    seen_hi = np.full(out_tiles.shape, -np.inf)
+    any_seen = False
+    for tv in range(out_tiles.shape[0]):
+        for tu in range(out_tiles.shape[1]):
+            if not out_tiles[tv, tu]:
+                continue
+            for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
+                for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
+                    if fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                        continue
+                    whole = True
+                    for qv in range(v - 1, v + 2):
+                        for qu in range(u - 1, u + 2):
+                            whole &= _in_front(depth[qv, qu], T[qv, qu], near, far)
+                    if not whole:
+                        continue
+                    surface[v, u] = True
+                    _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+                    d = np.float64(depth[v, u])
+                    on_robot = v >= sv0 and v <= sv1 and u >= su0 and u <= su1 and shadow[v, u] < np.inf
+                    if not on_robot and np.float64(B[v, u]) - d <= lift:
+                        seen_lo[tv, tu] = min(seen_lo[tv, tu], d)
+                        seen_hi[tv, tu] = max(seen_hi[tv, tu], d)
+                        any_seen = True
+    for tv in range(out_tiles.shape[0]):
+        for tu in range(out_tiles.shape[1]):
+            if not out_tiles[tv, tu]:
+                continue
+            for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
+                for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
+                    if surface[v, u] or fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                        continue
+                    if not _in_front(depth[v, u], T[v, u], near, far):
+                        continue
+                    border = False
+                    for qv in range(v - 1, v + 2):
+                        for qu in range(u - 1, u + 2):
+                            border |= surface[qv, qu]
+                    if border:
+                        _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+    return seen_lo, seen_hi, any_seen
+
+
+@nb.njit(cache=True, nogil=True)
+def _sheets(fs, edge, shadow, rect, cand, reach, sheet_z, sheet_end, margin, seen_lo, seen_hi, out_free, out_end, tile, out_tiles, out_sheet, changed):  # pragma: no cover - compiled
+    """The band sheets another camera's robot shadow may cross (``cand``), within a person's
+    feet's reach of a lower leg seen (``reach`` tiles in the image, ``margin`` [m] from the
+    sheet's depths ``sheet_z`` in depth; the legs' depths per tile ``seen_lo``/``seen_hi``):
+    a foot in the sheet reads as the surface. Their non-edge pixels' segments run to
+    ``sheet_end`` (or the robot's shadow start inside ``rect``); ``out_sheet`` and
+    ``changed`` mark the tiles."""
+    H, W = fs.shape
+    sv0, sv1, su0, su1 = rect
+    n_tv, n_tu = out_tiles.shape
+    for tv in range(n_tv):
+        for tu in range(n_tu):
+            r = reach[tv, tu]
+            if not cand[tv, tu] or r <= 0:
+                continue
+            near_seen = False
+            z0 = sheet_z[0, tv, tu] - margin
+            z1 = sheet_z[1, tv, tu] + margin
+            for qv in range(max(tv - r, 0), min(tv + r + 1, n_tv)):
+                for qu in range(max(tu - r, 0), min(tu + r + 1, n_tu)):
+                    near_seen |= seen_lo[qv, qu] <= z1 and seen_hi[qv, qu] >= z0
+            if not near_seen:
+                continue
+            out_sheet[tv, tu] = True
+            _mark_tile(changed, tv, tu, tile, H, W)
+            for v in range(tv * tile, min((tv + 1) * tile, H)):
+                for u in range(tu * tile, min((tu + 1) * tile, W)):
+                    if edge[v, u] or sheet_end[v, u] <= fs[v, u]:
+                        continue
+                    _surface_end(out_end, sheet_end, shadow, v, u, sv0, sv1, su0, su1)
+                    if out_free[v, u] < out_end[v, u]:
+                        out_tiles[tv, tu] = True
 
 
 def classify_frame(
