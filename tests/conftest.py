@@ -189,3 +189,36 @@ def in_raster_shadows(cameras, rasters, i: int, points: np.ndarray) -> list[tupl
         shadowed = r.covered[px[idx, 1], px[idx, 0]] & (zj[idx] >= r.shadow_start[px[idx, 1], px[idx, 0]])
         out.append((j, idx[shadowed]))
     return out
+
+
+def robot_shadow_poses(monitor: Monitor, rng: np.random.Generator, n: int = 6):  # type: ignore[no-untyped-def]
+    """The padded robot at the cell's joint state, then at ``n - 1`` random ones: per pose,
+    its pieces' image boxes in every camera (``robot_boxes``) and every camera's raster."""
+    from polyhull.engine.edge_wedges import robot_boxes
+    from polyhull.engine.robot_raster import rasterize_robot
+
+    robot, padded = monitor.robot, monitor._padded
+    assert robot is not None and padded is not None
+    cams = monitor.cell.cameras
+    for trial in range(n):
+        q = robot.lower + rng.random(len(robot.lower)) * (robot.upper - robot.lower)
+        if trial == 0:
+            q = np.asarray(monitor.cell.robot.q, dtype=np.float64)  # type: ignore[union-attr]
+        world = padded.world(robot.link_transforms(q))
+        yield robot_boxes(cams, world), [rasterize_robot(c, world, padded) for c in cams]
+
+
+def lost_points(monitor: Monitor, frames: dict, verdict, points: np.ndarray) -> np.ndarray:  # type: ignore[no-untyped-def, type-arg]
+    """The ``points`` (in Z) of a target the verdict loses: outside R3 (the static region
+    and the kept dynamic pieces) and not excused (in M by its definition, in a solid, or
+    not possibly occupied by the exact free depth of ``frames``)."""
+    from polyhull.commands.bench import _solid
+    from polyhull.distance import points_in_hexahedra
+
+    in_r3 = manifold_contains(monitor.static.region, points) | points_in_hexahedra(points, verdict._geometry.kept)
+    excused = (
+        in_robot_occlusion(monitor, points)
+        | _solid(monitor.cell, points)
+        | ~exactly_possibly_occupied(monitor, frames, points)
+    )
+    return points[~(in_r3 | excused)]  # type: ignore[no-any-return]

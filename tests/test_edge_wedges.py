@@ -9,17 +9,18 @@ from conftest import (
     exactly_possibly_occupied,
     in_raster_shadows,
     in_robot_occlusion,
+    lost_points,
     make_camera,
     manifold_contains,
     pixel_points,
+    robot_shadow_poses,
 )
 
 from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
-from polyhull.engine.edge_wedges import EdgeWedges, robot_boxes
+from polyhull.engine.edge_wedges import EdgeWedges
 from polyhull.engine.pixels import BLOCK, WEDGE_REACH, PixelBuffers, classify_frame, prepare_static
-from polyhull.engine.robot_raster import rasterize_robot
 from polyhull.engine.static_model import StaticCamera
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -90,19 +91,11 @@ def test_every_wedge_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, S
     shadow (a covered pixel, at or behind the shadow's start) belong to candidate wedges,
     at the demo's first joint state and five random ones."""
     monitor, _ = paper
-    robot, padded = monitor.robot, monitor._padded
-    assert robot is not None and padded is not None
     cams = monitor.cell.cameras
     wedges = EdgeWedges.build(monitor.static.cameras)
     rng = np.random.default_rng(0)
     hits = 0
-    for trial in range(6):
-        q = robot.lower + rng.random(len(robot.lower)) * (robot.upper - robot.lower)
-        if trial == 0:
-            q = np.asarray(monitor.cell.robot.q, dtype=np.float64)
-        world = padded.world(robot.link_transforms(q))
-        boxes = robot_boxes(cams, world)
-        rasters = [rasterize_robot(c, world, padded) for c in cams]
+    for trial, (boxes, rasters) in enumerate(robot_shadow_poses(monitor, rng)):
         for i, s in enumerate(monitor.static.cameras):
             chosen = {(int(a), int(b)) for a, b in wedges.ends(i, boxes)[0]}
             v, u = np.nonzero(s.edge & (s.own_free > s.free_static))
@@ -195,8 +188,6 @@ def test_a_leg_behind_its_seen_surface_near_the_floor_stays_in_r3(
     # the search's sample (seeded with the walk's seed) and the render's seed
     body = np.vstack([sample_points_inside(person, 4000, seed=s) for s in (seed, seed // 10)])
     body = body[(body[:, 2] < 0.2) & cell.zone.contains(body)]
-    in_r3 = manifold_contains(small_monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)
-    excused = in_robot_occlusion(small_monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(small_monitor, frames, body)
-    lost = body[~(in_r3 | excused)]
+    lost = lost_points(small_monitor, frames, v, body)
     small_monitor.reset()
     assert len(lost) == 0, lost[:5].tolist()

@@ -7,20 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from conftest import (
-    exactly_possibly_occupied,
     in_raster_shadows,
-    in_robot_occlusion,
+    lost_points,
     make_camera,
-    manifold_contains,
     pixel_points,
+    robot_shadow_poses,
 )
 
 from polyhull.cellfile import default_cell_path, load_cell
-from polyhull.commands.bench import _solid
-from polyhull.distance import points_in_hexahedra
-from polyhull.engine.edge_wedges import SheetTiles, robot_boxes
+from polyhull.engine.edge_wedges import SheetTiles
 from polyhull.engine.pixels import BLOCK, PixelBuffers, classify_frame, prepare_static
-from polyhull.engine.robot_raster import rasterize_robot
 from polyhull.engine.static_model import StaticCamera
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
@@ -99,19 +95,11 @@ def test_every_sheet_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, S
     shadow (a covered pixel, at or behind the shadow's start) belong to candidate tiles, at
     the cell's joint state and five random ones."""
     monitor, _ = paper
-    robot, padded = monitor.robot, monitor._padded
-    assert robot is not None and padded is not None
     cams = monitor.cell.cameras
     tiles = SheetTiles.build(monitor.static.cameras, TILE, 0.3, 0.3)
     rng = np.random.default_rng(1)
     hits = 0
-    for trial in range(6):
-        q = robot.lower + rng.random(len(robot.lower)) * (robot.upper - robot.lower)
-        if trial == 0:
-            q = np.asarray(monitor.cell.robot.q, dtype=np.float64)
-        world = padded.world(robot.link_transforms(q))
-        boxes = robot_boxes(cams, world)
-        rasters = [rasterize_robot(c, world, padded) for c in cams]
+    for trial, (boxes, rasters) in enumerate(robot_shadow_poses(monitor, rng)):
         for i, s in enumerate(monitor.static.cameras):
             chosen = tiles.candidates(i, boxes)
             ends = tiles.ends(i)
@@ -140,8 +128,6 @@ def test_a_foot_read_as_the_floor_where_the_arm_hides_it_stays_in_r3(small_monit
     v = small_monitor.step(frames, q, stamp=1.0)
     body = np.vstack([sample_points_inside(person, 4000, seed=s) for s in (108151, 1081510)])
     body = body[(body[:, 2] < 0.2) & cell.zone.contains(body)]
-    in_r3 = manifold_contains(small_monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)
-    excused = in_robot_occlusion(small_monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(small_monitor, frames, body)
-    lost = body[~(in_r3 | excused)]
+    lost = lost_points(small_monitor, frames, v, body)
     small_monitor.reset()
     assert len(lost) == 0, lost[:5].tolist()
