@@ -226,7 +226,8 @@ def _sheet_ends(statics: Sequence[object], i: int) -> np.ndarray:
     ``f_s`` to ``B - tau(B)`` that another camera frees in the empty cell (outside
     ``C_static``), one sample step farther (at most ``B - tau(B)``); ``f_s`` where none is
     (the whole sheet lies in ``C_static``), at edge pixels (their wedges) and for a colour
-    camera. The samples resolve the sheet to a sixteenth of its depth (1 to 2 cm)."""
+    camera. The samples resolve the sheet to a sixteenth of its depth (1 to 2 cm); they
+    are tried from the far end, each pixel until one is free."""
     s = statics[i]
     cam: Camera = s.camera  # type: ignore[attr-defined]
     fs = np.asarray(s.free_static, dtype=np.float64)  # type: ignore[attr-defined]
@@ -238,27 +239,53 @@ def _sheet_ends(statics: Sequence[object], i: int) -> np.ndarray:
     z0, z1 = fs[v, u], fe[v, u]
     step = (z1 - z0) / (SHEET_SAMPLES - 1)
     k = cam.intrinsics
-    last = np.full(len(v), -1)
-    for n in range(SHEET_SAMPLES):
-        z = z0 + n * step
-        pts = cam.camera_to_world(np.column_stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z]))
-        freed = np.zeros(len(v), dtype=bool)
-        for j, sj in enumerate(statics):
-            if j == i:
-                continue
+    # camera-frame rays with unit z, in the world frame (origin: the camera's centre)
+    T = cam.T_world_camera
+    rays = np.column_stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones(len(u))]) @ T[:3, :3].T
+    others = []
+    for j, sj in enumerate(statics):
+        if j != i:
             cj: Camera = sj.camera  # type: ignore[attr-defined]
-            uv, zj = cj.project(pts)
-            with np.errstate(invalid="ignore"):
-                px = np.floor(uv + 0.5)
-            H, W = cj.shape
-            inside = (zj > 0) & (px[:, 0] >= 0) & (px[:, 0] < W) & (px[:, 1] >= 0) & (px[:, 1] < H)
-            idx = np.nonzero(inside)[0]
-            f = np.asarray(sj.free_static)[px[idx, 1].astype(np.int64), px[idx, 0].astype(np.int64)]  # type: ignore[attr-defined]
-            freed[idx[zj[idx] < f]] = True
-        last[freed] = n
+            kj = cj.intrinsics
+            others.append((cj.T_camera_world, np.array([kj.fx, kj.fy, kj.cx, kj.cy]), np.asarray(sj.free_static)))  # type: ignore[attr-defined]
+    last = np.full(len(v), -1, dtype=np.int64)
+    for n in range(SHEET_SAMPLES - 1, -1, -1):
+        todo = np.nonzero(last < 0)[0]
+        if not len(todo):
+            break
+        z = z0[todo] + n * step[todo]
+        freed = np.zeros(len(todo), dtype=np.bool_)
+        for Tj, kj, fsj in others:
+            _freed(rays[todo], z, T[:3, 3].copy(), Tj, kj, fsj, freed)
+        last[todo[freed]] = n
     some = last >= 0
     out[v[some], u[some]] = np.minimum(z0[some] + (last[some] + 1) * step[some], z1[some])
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _freed(rays, z, origin, T, k, fs, out):  # pragma: no cover - compiled
+    """``out[n] |= the point origin + z[n] rays[n] lies in front of the static free depth
+    ``fs`` of the pixel it projects to in the camera of ``T`` (world to camera) and
+    intrinsics ``k`` (fx, fy, cx, cy)``."""
+    H, W = fs.shape
+    for n in range(rays.shape[0]):
+        if out[n]:
+            continue
+        x = origin[0] + z[n] * rays[n, 0]
+        y = origin[1] + z[n] * rays[n, 1]
+        w = origin[2] + z[n] * rays[n, 2]
+        cx = T[0, 0] * x + T[0, 1] * y + T[0, 2] * w + T[0, 3]
+        cy = T[1, 0] * x + T[1, 1] * y + T[1, 2] * w + T[1, 3]
+        cz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * w + T[2, 3]
+        if cz <= 0.0:
+            continue
+        pu = np.floor(k[0] * cx / cz + k[2] + 0.5)
+        pv = np.floor(k[1] * cy / cz + k[3] + 0.5)
+        if pu < 0 or pv < 0 or pu >= W or pv >= H:
+            continue
+        if cz < fs[int(pv), int(pu)]:
+            out[n] = True
 
 
 def _project(cams: Sequence[Camera], i: int, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
