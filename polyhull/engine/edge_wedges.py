@@ -246,8 +246,8 @@ def _sheet_ends(statics: Sequence[object], i: int) -> np.ndarray:
     for j, sj in enumerate(statics):
         if j != i:
             cj: Camera = sj.camera  # type: ignore[attr-defined]
-            kj = cj.intrinsics
-            others.append((cj.T_camera_world, np.array([kj.fx, kj.fy, kj.cx, kj.cy]), np.asarray(sj.free_static)))  # type: ignore[attr-defined]
+            ij = cj.intrinsics
+            others.append((cj.T_camera_world, np.array([ij.fx, ij.fy, ij.cx, ij.cy]), np.asarray(sj.free_static)))  # type: ignore[attr-defined]
     last = np.full(len(v), -1, dtype=np.int64)
     for n in range(SHEET_SAMPLES - 1, -1, -1):
         todo = np.nonzero(last < 0)[0]
