@@ -714,7 +714,8 @@ class Monitor:
         t0 = time.perf_counter()
         raster_done = [t0] * len(cell.cameras)
 
-        # where each camera sees the padded robot (the edge wedges its shadow may meet)
+        # where each camera sees the padded robot's pieces (the edge wedges and sheet tiles
+        # their shadows may meet)
         boxes = robot_boxes(cell.cameras, padded_world)
 
         def camera(i: int) -> tuple[RobotRaster | None, _CameraPixels]:
@@ -725,11 +726,7 @@ class Monitor:
             raster_done[i] = time.perf_counter()
             return raster, self._camera_pixels(
                 i, usable, raster, pixel_bufs[i], pyramids, bufs.end_pyramids, self._edge_wedges.ends(i, boxes),
-                (
-                    self._sheet_tiles.candidates(i, boxes), self._sheet_tiles.reach(i),
-                    self._sheet_tiles.depths(i), self._sheet_tiles.ends(i), self._sheet_tiles.margin,
-                    self._sheet_tiles.lift,
-                ),
+                self._sheet_tiles.cycle(i, boxes),
             )
 
         done = share(self._pool, camera, range(len(cell.cameras)))
@@ -1024,8 +1021,8 @@ class Monitor:
     ) -> _CameraPixels:
         """One camera's pixel classes, small gaps, free-depth pyramids and initial tiles
         (thread-safe: it writes only camera ``i``'s images; ``wedges``: its edge pixels
-        whose segment runs to their own free depth this cycle; ``sheets``: its candidate
-        sheet tiles, their reach and depths, and the margin)."""
+        whose segment runs to their own free depth this cycle; ``sheets``: its
+        :meth:`polyhull.engine.edge_wedges.SheetTiles.cycle`)."""
         cell = self.cell
         cam, s = cell.cameras[i], self.static.cameras[i]
         depth = usable.get(cam.name)

@@ -207,6 +207,12 @@ class SheetTiles:
         (+inf and -inf: none)."""
         return self._depths[i]
 
+    def cycle(self, i: int, robots: Sequence[np.ndarray | None]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float, float]:
+        """Camera ``i``'s ``sheets`` argument of
+        :func:`polyhull.engine.pixels.classify_frame` this cycle: its candidate tiles, their
+        reach and depths, its sheet ends, the margin and the lift."""
+        return self.candidates(i, robots), self._reach[i], self._depths[i], self._ends[i], self.margin, self.lift
+
     def candidates(self, i: int, robots: Sequence[np.ndarray | None]) -> np.ndarray:
         """Camera ``i``'s (n_v, n_u) tiles whose sheet may meet another camera's robot
         shadow this cycle (``robots``: :func:`robot_boxes`)."""
