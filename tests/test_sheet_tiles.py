@@ -131,3 +131,34 @@ def test_a_foot_read_as_the_floor_where_the_arm_hides_it_stays_in_r3(small_monit
     lost = lost_points(small_monitor, frames, v, body)
     small_monitor.reset()
     assert len(lost) == 0, lost[:5].tolist()
+
+
+def test_sheet_tiles_only_lengthen_segments() -> None:
+    """Invariant (hypothesis): on random frames of a wall with random surfaces, candidates
+    and reaches, the sheet tiles leave every free depth as it is and never shorten a
+    segment's end (the possibly occupied region only grows)."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    cam = make_camera(width=64, height=48)
+    static = StaticCamera.build(cam, np.full(cam.shape, 4.0), 2)
+    prepared = prepare_static(static.lower, static.upper, static.free_static, cam.near, static.edge)
+    nv, nu = 48 // TILE, 64 // TILE
+    depths = np.stack([np.full((nv, nu), static.free_static.min()), np.full((nv, nu), static.free_empty.max())])
+
+    @settings(max_examples=40, deadline=None)
+    @given(st.integers(0, 2**31 - 1))
+    def check(seed: int) -> None:
+        rng = np.random.default_rng(seed)
+        D = (static.reference + rng.normal(0, 0.03, cam.shape)).astype(np.float32)
+        for _ in range(int(rng.integers(0, 4))):  # surfaces in front of the wall
+            v0, u0 = int(rng.integers(0, 44)), int(rng.integers(0, 60))
+            D[v0 : v0 + int(rng.integers(2, 8)), u0 : u0 + int(rng.integers(2, 8))] = rng.uniform(2.5, 3.9)
+        D[rng.random(cam.shape) < 0.02] = 0.0  # dropouts
+        sheets = (rng.random((nv, nu)) < 0.5, rng.integers(0, 4, (nv, nu)), depths, static.free_empty, 0.3, 0.6)
+        plain = _classify(static, D, PixelBuffers(prepared, static.free_static), None)
+        with_sheets = _classify(static, D, PixelBuffers(prepared, static.free_static), sheets)
+        np.testing.assert_array_equal(with_sheets.free, plain.free)
+        assert (with_sheets.end >= plain.end).all()
+
+    check()
