@@ -54,6 +54,16 @@ def small_monitor(small_cell: Cell, small_sim: Simulator) -> Monitor:
     return Monitor(small_cell, references=small_sim.reference())
 
 
+@pytest.fixture(scope="module")
+def paper() -> tuple[Monitor, Simulator]:
+    """A monitor of the default (paper) cell and its simulator, one per test module."""
+    from polyhull.cellfile import default_cell_path
+
+    cell = load_cell(default_cell_path())
+    sim = Simulator(cell)
+    return Monitor(cell, references=sim.reference()), sim
+
+
 @pytest.fixture()
 def fresh_monitor(small_monitor: Monitor) -> Monitor:
     """The session monitor with its faults and history cleared."""

@@ -16,7 +16,6 @@ from conftest import (
     robot_shadow_poses,
 )
 
-from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.engine.edge_wedges import EdgeWedges
@@ -25,13 +24,6 @@ from polyhull.engine.static_model import StaticCamera
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
-
-
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
 
 
 def _step_reference(cam) -> np.ndarray:  # noqa: ANN001 - a Camera

@@ -15,7 +15,7 @@ import manifold3d as m3
 import numpy as np
 import pytest
 
-from polyhull.cellfile import default_cell_path, load_cell
+from polyhull.cellfile import default_cell_path
 from polyhull.commands.bench import _solid, dynamic_volume_outside_static
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
@@ -26,13 +26,6 @@ from polyhull.simulator import SensorEffects, Simulator
 
 CYCLES = 12
 DT = 0.1  # [s], the bench's cycle
-
-
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
 
 
 def test_empty_cell_distance_is_the_static_one(paper: tuple[Monitor, Simulator]) -> None:

@@ -230,13 +230,6 @@ def test_what_the_m_test_drops_from_the_memory_is_in_the_region_or_free(color_k:
     assert ok.all(), f"{(~ok).sum()} of {len(pts)} points of the old memory lost (k = {k}): {pts[~ok][:3]}"
 
 
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
-
-
 # Found by a search of 60 walks past the robot (seeds 70000-70059; the checked points are
 # within a person's reach of the last cycle's seeds, in M by its definition, possibly
 # occupied by the exact free depth, outside the padded robot's depth span and the solids):

@@ -22,20 +22,11 @@ from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_con
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
-from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
-
-
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
-
 
 # a few derandomized examples each (CI); HYPOTHESIS_PROFILE=explore draws fresh ones
 SEARCH = settings(

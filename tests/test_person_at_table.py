@@ -25,7 +25,6 @@ import numpy as np
 import pytest
 from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
 
-from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.commands.bench import _solid
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
@@ -36,13 +35,6 @@ from polyhull.simulator import SensorEffects, Simulator
 Q = [0.7271, -1.5896, -2.2518, 4.3725, -1.8492, -3.6519]
 Q_RACK = [-1.7347, 0.3554, -0.0456, -0.1651, 1.5069, -4.4347]
 Q_SIDE = [1.8561, 1.9795, -0.7115, 5.7843, -1.1483, 1.795]
-
-
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
 
 
 @pytest.mark.parametrize(

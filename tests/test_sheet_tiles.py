@@ -5,7 +5,6 @@ sheet's segments run to the empty cell's free depth."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 from conftest import (
     in_raster_shadows,
     lost_points,
@@ -14,7 +13,6 @@ from conftest import (
     robot_shadow_poses,
 )
 
-from polyhull.cellfile import default_cell_path, load_cell
 from polyhull.engine.edge_wedges import SheetTiles
 from polyhull.engine.pixels import BLOCK, PixelBuffers, classify_frame, prepare_static
 from polyhull.engine.static_model import StaticCamera
@@ -80,13 +78,6 @@ def test_a_candidate_sheet_runs_to_the_empty_cells_free_depth_near_a_surface_see
     # not a candidate: nothing
     cls = _classify(static, surface_at(4, 3.8), buffers, (np.zeros_like(cand), reach, depths, static.free_empty, 0.3, 0.6))
     assert (cls.end[tile] == static.free_static[tile]).all()
-
-
-@pytest.fixture(scope="module")
-def paper() -> tuple[Monitor, Simulator]:
-    cell = load_cell(default_cell_path())
-    sim = Simulator(cell)
-    return Monitor(cell, references=sim.reference()), sim
 
 
 def test_every_sheet_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, Simulator]) -> None:
