@@ -10,6 +10,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from polyhull.cachedir import kernel_sources_digest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 _KERNEL = """
@@ -34,12 +36,35 @@ def _env(**extra: str) -> dict[str, str]:
 
 
 def test_kernels_are_cached_under_the_user_cache(tmp_path: Path) -> None:
-    assert _run(_env(XDG_CACHE_HOME=str(tmp_path))) == str(tmp_path / "polyhull" / "numba")
-    assert any((tmp_path / "polyhull" / "numba").rglob("*.nbi"))  # the kernel's index is there
+    digest = kernel_sources_digest()
+    assert _run(_env(XDG_CACHE_HOME=str(tmp_path))) == str(tmp_path / "polyhull" / "numba" / digest)
+    assert any((tmp_path / "polyhull" / "numba" / digest).rglob("*.nbi"))  # the kernel's index is there
 
 
 def test_polyhull_cache_dir_and_numba_cache_dir_are_honoured(tmp_path: Path) -> None:
-    assert _run(_env(POLYHULL_CACHE_DIR=str(tmp_path / "p"))) == str(tmp_path / "p" / "numba")
+    digest = kernel_sources_digest()
+    assert _run(_env(POLYHULL_CACHE_DIR=str(tmp_path / "p"))) == str(tmp_path / "p" / "numba" / digest)
     # the static model cache off: the kernels still go under the user's cache
-    assert _run(_env(POLYHULL_CACHE_DIR="off", XDG_CACHE_HOME=str(tmp_path / "x"))) == str(tmp_path / "x" / "polyhull" / "numba")
+    assert _run(_env(POLYHULL_CACHE_DIR="off", XDG_CACHE_HOME=str(tmp_path / "x"))) == str(
+        tmp_path / "x" / "polyhull" / "numba" / digest
+    )
     assert _run(_env(NUMBA_CACHE_DIR=str(tmp_path / "n"))) == str(tmp_path / "n")
+
+
+def test_the_kernel_folder_follows_every_kernel_module(tmp_path: Path) -> None:
+    """numba checks only the stamp of a kernel's own file: a kernel inlining one from another
+    module would keep the old code after only that module changed. The folder's digest
+    changes with any module defining kernels, not with the others."""
+    (tmp_path / "engine").mkdir()
+    caller, callee, plain = tmp_path / "engine" / "a.py", tmp_path / "engine" / "b.py", tmp_path / "c.py"
+    caller.write_text("@nb.njit\ndef f(x):\n    return g(x)\n")
+    callee.write_text("@nb.njit(inline='always')\ndef g(x):\n    return x + 1\n")
+    plain.write_text("X = 1\n")
+    before = kernel_sources_digest(tmp_path)
+    plain.write_text("X = 2\n")
+    assert kernel_sources_digest(tmp_path) == before
+    callee.write_text("@nb.njit(inline='always')\ndef g(x):\n    return x + 2\n")
+    changed = kernel_sources_digest(tmp_path)
+    assert changed != before
+    callee.rename(tmp_path / "b.py")  # the same text elsewhere is another module
+    assert kernel_sources_digest(tmp_path) not in (before, changed)
