@@ -37,6 +37,7 @@ import numba as nb
 import numpy as np
 
 from ..typed import ArrayF32
+from .rounding import down32, up32
 
 __all__ = [
     "PixelBuffers",
@@ -221,15 +222,6 @@ def _exact_free(d, b, a, tmin):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _toward_camera(x):  # pragma: no cover - compiled
-    """``x`` as a float32 rounded down (toward the camera: a free depth never grows)."""
-    f = np.float32(x)
-    if f > x:
-        f = np.nextafter(f, np.float32(-np.inf))
-    return f
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def _mark_tile(changed, tv, tu, tile, H, W):  # pragma: no cover - compiled
     """Mark the blocks of ``changed`` that tile (tv, tu) of edge ``tile`` covers."""
     for bv in range(tv * tile // BLOCK, (min((tv + 1) * tile, H) - 1) // BLOCK + 1):
@@ -344,7 +336,7 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                         # a static edge: the band is the neighbourhood's (flying pixels), so
                         # f_s is the nearer surface's; this reading's exact free depth is at
                         # least that (f_s is its least over the band), rounded toward the camera
-                        fr = max(_toward_camera(_exact_free(d, min(np.float64(B[v, u]), far), a, tmin)), free0[v, u])
+                        fr = max(down32(_exact_free(d, min(np.float64(B[v, u]), far), a, tmin)), free0[v, u])
                         out_free[v, u] = fr
                         out_invalid[v, u] = False
                         now |= fr != free0[v, u]
@@ -385,7 +377,7 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
                 out_end[v, u] = e32
                 end = np.float64(e32)
                 # float32 storage rounds toward the camera (free): the segment only grows
-                fr = _toward_camera(free)
+                fr = down32(free)
                 out_free[v, u] = fr
                 out_invalid[v, u] = bad
                 now |= fr != free0[v, u] or bad
@@ -1034,8 +1026,6 @@ def _memory(covered, back, free, fs, rects, zr, cell, out_f, out_e):  # pragma: 
             for ub in range(u0 // cell, u1 // cell + 1):
                 zlo[tb, ub] = min(zlo[tb, ub], zr[b, 0])
                 zhi[tb, ub] = max(zhi[tb, ub], zr[b, 1])
-    ninf = np.float32(-np.inf)
-    pinf = np.float32(np.inf)
     for v in range(H):
         for u in range(W):
             if not covered[v, u]:
@@ -1046,14 +1036,8 @@ def _memory(covered, back, free, fs, rects, zr, cell, out_f, out_e):  # pragma: 
             start = max(max(np.float64(free[v, u]), np.float64(back[v, u])), lo)
             stop = min(np.float64(fs[v, u]), zhi[v // cell, u // cell])
             if start < stop:
-                f = np.float32(start)
-                if f > start:
-                    f = np.nextafter(f, ninf)
-                e = np.float32(stop)
-                if e < stop:
-                    e = np.nextafter(e, pinf)
-                out_f[v, u] = f
-                out_e[v, u] = e
+                out_f[v, u] = down32(start)
+                out_e[v, u] = up32(stop)
 
 
 def memory_segments(

@@ -32,6 +32,7 @@ from scipy.spatial import ConvexHull
 from ..camera import Camera
 from ..occlusion import grow_piece
 from ..typed import ArrayF32, ArrayF64
+from .rounding import down32, up32
 
 __all__ = ["PaddedPieces", "RasterBuffers", "RobotRaster", "rasterize_robot"]
 
@@ -513,10 +514,6 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, binary, covered
     square that meets a piece enters through a front face and leaves through a back face,
     whose (superset) half-plane tests both pass, so only pixels no ray hits are left out
     (the per-edge tests pass a few of those near a face's sharp corners)."""
-    # a float32 one step towards 0 or infinity, by its bits (np.nextafter is a libm call:
-    # three a pixel cost ~20 ns); every value rounded here is positive and finite
-    bits_f = np.empty(1, dtype=np.float32)
-    bits_i = bits_f.view(np.int32)
     back_min = np.float32(np.inf)
     for v in range(v0, v1 + 1):
         for u in range(u0, u1 + 1):
@@ -533,8 +530,8 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, binary, covered
             z = max(-1.0 / wn, near)
             zb = -1.0 / wx if wx < 0.0 else np.inf
             covered[v, u] = True
-            front[v, u] = _round32(z, -1, bits_f, bits_i)
-            b32 = _round32(zb, 1, bits_f, bits_i)
+            front[v, u] = down32(z)
+            b32 = up32(zb)
             back[v, u] = b32
             back_min = min(back_min, b32)
             out[0] = min(out[0], u)
@@ -542,23 +539,10 @@ def _finish(zbuf, zback, u0, u1, v0, v1, near, a, tmin, padding, binary, covered
             out[2] = min(out[2], v)
             out[3] = max(out[3], v)
             if binary:
-                start[v, u] = _round32(near, -1, bits_f, bits_i)
+                start[v, u] = down32(near)
             else:
                 tau = max(a * z * z, tmin)
                 s = max(z - max(0.0, 2.0 * tau - padding), near)
-                start[v, u] = _round32(s, -1, bits_f, bits_i)
+                start[v, u] = down32(s)
     return back_min
 
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _round32(x, direction, bits_f, bits_i):  # pragma: no cover - compiled
-    """``x`` as a float32 rounded down (``direction`` -1) or up (+1); ``bits_f`` and
-    ``bits_i`` are a 1-element float32 array and its int32 view (scratch)."""
-    f = np.float32(x)
-    if (direction < 0 and f > x) or (direction > 0 and f < x):
-        if f > 0.0 and f < np.inf:
-            bits_f[0] = f
-            bits_i[0] += direction
-            return bits_f[0]
-        return np.nextafter(f, np.float32(direction * np.inf))
-    return f
