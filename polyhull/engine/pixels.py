@@ -311,12 +311,14 @@ def _classify(depth, band, B, T, U, fs, fe, free0, edge, edge_chunks, shadow, re
             c0 = ci * CHUNK
             c1 = min(c0 + CHUNK, W)
             hit = edge_chunks[v, ci]
+            ok = True  # bitwise, not short-circuit: the loop compiles branch-free
             for u in range(c0, c1):
                 dm = np.float32(1000.0) * depth[v, u]
                 p = band[v, u]
                 tq = np.float32(p & 0xFFFF)
                 uq = np.float32(p >> 16)
-                hit |= not (dm >= tq and (dm <= uq or uq == np.float32(65535.0)))
+                ok &= (dm >= tq) & ((dm <= uq) | (uq == np.float32(65535.0)))
+            hit |= not ok
             was = dirty[v, ci]
             if not hit:
                 if was:  # back to the static images
