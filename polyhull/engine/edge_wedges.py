@@ -58,37 +58,60 @@ def robot_boxes(cameras: Sequence[Camera], pieces: Sequence[np.ndarray]) -> list
     None where no piece is in the image (the robot shadows nothing there). A piece's shadow
     lies in its rectangle, beyond its nearest depth: the pieces' boxes bound the robot's
     shadow far more tightly than one box of the whole arm."""
-    out: list[np.ndarray | None] = []
     if not len(pieces):
         return [None] * len(cameras)
-    sizes = np.array([len(p) for p in pieces])
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    vt = np.concatenate(pieces).T
+    sizes = np.array([len(p) for p in pieces], dtype=np.int64)
+    verts = np.ascontiguousarray(np.concatenate(pieces), dtype=np.float64)
+    out: list[np.ndarray | None] = []
     for cam in cameras:
         H, W = cam.shape
-        T = cam.T_camera_world
-        pc = T[:3, :3] @ vt + T[:3, 3:4]  # (3, N): rows reduce fast
-        z = pc[2]
-        behind = np.minimum.reduceat(z, starts) <= 1e-9
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x, y = pc[0] / z, pc[1] / z
         k = cam.intrinsics
-        zmin = np.minimum.reduceat(z, starts)
-        b = np.column_stack(
-            [
-                k.fx * np.minimum.reduceat(x, starts) + k.cx - 2.0,
-                k.fx * np.maximum.reduceat(x, starts) + k.cx + 2.0,
-                k.fy * np.minimum.reduceat(y, starts) + k.cy - 2.0,
-                k.fy * np.maximum.reduceat(y, starts) + k.cy + 2.0,
-                zmin - 2.0 * cam.tau(np.maximum(zmin, 0.0)),
-            ]
+        b = np.empty((len(pieces), 5))
+        n = _piece_boxes(
+            verts, sizes, np.ascontiguousarray(cam.T_camera_world, dtype=np.float64), k.fx, k.fy, k.cx, k.cy, W, H,
+            float(cam.tolerance_sigmas * cam.noise), float(cam.tolerance_min), cam.kind == "color", b,
         )
-        b[behind] = np.array([-np.inf, np.inf, -np.inf, np.inf, 0.0])
-        if cam.kind == "color":
-            b[:, 4] = 0.0
-        seen = behind | ~((b[:, 1] < -0.5) | (b[:, 3] < -0.5) | (b[:, 0] > W - 0.5) | (b[:, 2] > H - 0.5))
-        out.append(np.ascontiguousarray(b[seen]) if seen.any() else None)
+        out.append(b[:n] if n else None)
     return out
+
+
+@nb.njit(cache=True, nogil=True)
+def _piece_boxes(verts, sizes, T, fx, fy, cx, cy, W, H, tau_a, tau_min, binary, out):  # pragma: no cover - compiled
+    """Write the rows of :func:`robot_boxes` of the pieces in the image into ``out``
+    (pieces ``sizes`` vertices each, stacked in ``verts``); returns their count."""
+    n = 0
+    j = 0
+    for p in range(sizes.shape[0]):
+        xmin = np.inf
+        xmax = -np.inf
+        ymin = np.inf
+        ymax = -np.inf
+        zmin = np.inf
+        for q in range(j, j + sizes[p]):
+            x, y, z = verts[q, 0], verts[q, 1], verts[q, 2]
+            pz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+            px = (T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]) / pz
+            py = (T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]) / pz
+            xmin = min(xmin, px)
+            xmax = max(xmax, px)
+            ymin = min(ymin, py)
+            ymax = max(ymax, py)
+            zmin = min(zmin, pz)
+        j += sizes[p]
+        if zmin <= 1e-9:  # a vertex not in front of the camera: the whole image
+            out[n, 0], out[n, 1], out[n, 2], out[n, 3], out[n, 4] = -np.inf, np.inf, -np.inf, np.inf, 0.0
+            n += 1
+            continue
+        u0 = fx * xmin + cx - 2.0
+        u1 = fx * xmax + cx + 2.0
+        v0 = fy * ymin + cy - 2.0
+        v1 = fy * ymax + cy + 2.0
+        if u1 < -0.5 or v1 < -0.5 or u0 > W - 0.5 or v0 > H - 0.5:
+            continue  # outside the image
+        out[n, 0], out[n, 1], out[n, 2], out[n, 3] = u0, u1, v0, v1
+        out[n, 4] = 0.0 if binary else zmin - 2.0 * max(tau_a * zmin * zmin, tau_min)
+        n += 1
+    return n
 
 
 class _Wedges(NamedTuple):
