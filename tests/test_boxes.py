@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from polyhull.engine.boxes import (
     ANY_PARALLEL_MIN,
+    OverlapSweep,
     TriangleGrid,
     any_overlap,
     group_bounds,
@@ -68,6 +69,20 @@ def test_touching_boxes_group_like_brute_force(seed: int, n: int, cells: int, fl
     if flat >= 0:  # all in one plane: the sweep axis is then another one
         lo[:, flat] = hi[:, flat] = 0.0
     _assert_same_groups(lo, hi)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(0, 150), parts=st.integers(1, 9), lattice=st.booleans())
+def test_a_sweep_in_parts_gives_the_groups_of_one_scan(seed: int, n: int, parts: int, lattice: bool) -> None:
+    """The parts' forests, scanned in any order (as two threads do), join into the labels of
+    one scan; the parts cover every box once."""
+    lo, hi = _lattice_boxes(seed, n, 6) if lattice else _random_boxes(seed, n, 1.0)
+    sweep = OverlapSweep(lo, hi, parts)
+    assert sweep.parts == parts and sweep.bounds[0] == 0 and sweep.bounds[-1] == n
+    assert np.all(np.diff(sweep.bounds) >= 0)
+    order = np.random.default_rng(seed).permutation(parts)
+    forests = {int(p): sweep.scan(int(p)) for p in order}
+    assert np.array_equal(sweep.labels([forests[p] for p in range(parts)]), overlap_groups(lo, hi))
 
 
 def test_groups_of_no_box_and_of_one_box() -> None:

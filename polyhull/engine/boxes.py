@@ -26,7 +26,7 @@ from ..errors import GeometryError
 from ..typed import ArrayF64
 from .threads import share
 
-__all__ = ["overlap_groups", "group_bounds", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
+__all__ = ["OverlapSweep", "overlap_groups", "group_bounds", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -56,37 +56,39 @@ def _started_before_end(lo_sorted, hi_sorted):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _groups(lo, hi, axis, order):  # pragma: no cover - compiled
-    """Labels 0..K-1 (in the order of each group's first box) of the connected groups of
-    overlapping boxes [lo, hi] (3, N), swept along ``axis`` in ``order``.
-
-    Sweep and prune: boxes sorted along the sweep axis, each scans the boxes that start
-    within its extent along it (the end of the scan by binary search). The scan is
-    branch-free (each candidate's overlap along the two other axes adds 0 or 1 to a running
-    count, its index kept when it is 1), so it costs about a nanosecond per candidate with
-    no mispredicted branches; the union-find then joins only the boxes that do overlap.
-    """
+def _sweep_arrays(lo, hi, axis, order):  # pragma: no cover - compiled
+    """The boxes [lo, hi] (3, N) in sweep ``order`` along ``axis`` as a structure of arrays
+    (6, N): the start along the axis, the two other axes' bounds (lo, hi, lo, hi), the end
+    along the axis; and each box's scan end (N,): the first box starting after it ends."""
     n = lo.shape[1]
     b, c = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
-    # structure of arrays, in sweep order: the scan reads four contiguous columns
-    lx = np.empty(n)
-    ly = np.empty(n)
-    hy = np.empty(n)
-    lz = np.empty(n)
-    hz = np.empty(n)
-    hx = np.empty(n)
+    soa = np.empty((6, n))
     for k in range(n):
         i = order[k]
-        lx[k] = lo[axis, i]
-        hx[k] = hi[axis, i]
-        ly[k] = lo[b, i]
-        hy[k] = hi[b, i]
-        lz[k] = lo[c, i]
-        hz[k] = hi[c, i]
-    end = np.searchsorted(lx, hx, side="right")
+        soa[0, k] = lo[axis, i]
+        soa[1, k] = lo[b, i]
+        soa[2, k] = hi[b, i]
+        soa[3, k] = lo[c, i]
+        soa[4, k] = hi[c, i]
+        soa[5, k] = hi[axis, i]
+    return soa, np.searchsorted(soa[0], soa[5], side="right")
+
+
+@nb.njit(cache=True, nogil=True)
+def _scan(soa, end, i0, i1):  # pragma: no cover - compiled
+    """A union-find forest (N,) of the overlaps of boxes ``i0 <= i < i1`` (sweep order)
+    with the boxes after them.
+
+    Sweep and prune: each box scans the boxes that start within its extent along the
+    sweep axis. The scan is branch-free (each candidate's overlap along the two other axes
+    adds 0 or 1 to a running count, its index kept when it is 1), so it costs about a
+    nanosecond per candidate with no mispredicted branches; the union-find then joins only
+    the boxes that do overlap."""
+    n = soa.shape[1]
+    ly, hy, lz, hz = soa[1], soa[2], soa[3], soa[4]
     parent = np.arange(n)
     hits = np.empty(n, dtype=np.int64)
-    for i in range(n):
+    for i in range(i0, i1):
         y0, y1, z0, z1 = ly[i], hy[i], lz[i], hz[i]
         m = 0
         for j in range(i + 1, end[i]):
@@ -99,7 +101,22 @@ def _groups(lo, hi, axis, order):  # pragma: no cover - compiled
             rj = _find(parent, hits[k])
             if rj != ri:
                 parent[rj] = ri
-    # back to the input order, groups numbered by their first box
+    return parent
+
+
+@nb.njit(cache=True, nogil=True)
+def _labels(forests, order):  # pragma: no cover - compiled
+    """Labels 0..K-1 (input order, groups numbered by their first box) of the union of
+    the union-find forests (P, N) over the boxes in sweep ``order``."""
+    n = forests.shape[1]
+    parent = forests[0].copy()
+    for f in range(1, forests.shape[0]):
+        for x in range(n):
+            rx = _find(forests[f], x)
+            if rx != x:
+                a, b = _find(parent, x), _find(parent, rx)
+                if a != b:
+                    parent[b] = a
     first = np.full(n, -1, dtype=np.int64)
     labels = np.empty(n, dtype=np.int64)
     root_of = np.empty(n, dtype=np.int64)
@@ -115,26 +132,60 @@ def _groups(lo, hi, axis, order):  # pragma: no cover - compiled
     return labels
 
 
+class OverlapSweep:
+    """:func:`overlap_groups` in parts: the boxes are sorted once, :meth:`scan` scans one
+    part (any thread, each part once; the parts hold about equal numbers of candidate
+    pairs), and :meth:`labels` joins the parts' forests into the groups (those of one
+    scan: the union of the parts' overlaps is every overlap)."""
+
+    def __init__(self, lo: ArrayF64, hi: ArrayF64, parts: int = 1) -> None:
+        lo = np.asarray(lo, dtype=np.float64)
+        hi = np.asarray(hi, dtype=np.float64)
+        if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape:
+            raise GeometryError(f"overlap_groups: expected lo and hi of shape (N, 3), got {lo.shape} and {hi.shape}")
+        n = lo.shape[0]
+        parts = max(int(parts), 1)
+        lo_t = np.ascontiguousarray(lo.T)  # (3, N)
+        hi_t = np.ascontiguousarray(hi.T)
+        # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
+        # extent along it): per axis, the boxes starting before each box ends (the pairs that
+        # start before a box starts add the same n (n - 1) / 2 on every axis); numpy's sorts
+        # are vectorised, so the sorting stays outside the compiled code
+        axis = int(np.argmin(_started_before_end(np.sort(lo_t, axis=1), np.sort(hi_t, axis=1)))) if n else 0
+        self._order = np.argsort(lo_t[axis])
+        self._soa, self._end = _sweep_arrays(lo_t, hi_t, axis, self._order)
+        # the parts' first boxes, at equal shares of the candidates
+        cand = np.cumsum(self._end - np.arange(n) - 1)
+        total = float(cand[-1]) if n else 0.0
+        cuts = np.searchsorted(cand, total * np.arange(1, parts) / parts, side="right")
+        self.bounds = np.concatenate([[0], cuts, [n]]).astype(np.int64)
+        """Part p scans the boxes ``bounds[p] <= i < bounds[p + 1]`` (sweep order)."""
+
+    @property
+    def parts(self) -> int:
+        """The number of parts."""
+        return len(self.bounds) - 1
+
+    def scan(self, part: int) -> np.ndarray:
+        """The union-find forest (N,) of one part's overlaps."""
+        return _scan(self._soa, self._end, int(self.bounds[part]), int(self.bounds[part + 1]))
+
+    def labels(self, forests: list[np.ndarray]) -> np.ndarray:
+        """(N,) labels 0..K-1 (input order, numbered by each group's first box) from every
+        part's forest."""
+        if not len(self._order):
+            return np.zeros(0, dtype=np.int64)
+        return _labels(np.stack(forests), self._order)
+
+
 def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
     """(N,) labels 0..K-1 of the connected groups of overlapping boxes [lo, hi] (N, 3).
 
     Boxes are closed: boxes that only touch overlap. Groups are numbered in the order of
-    their first box (box 0 is in group 0).
+    their first box (box 0 is in group 0). (:class:`OverlapSweep` in one part.)
     """
-    lo = np.asarray(lo, dtype=np.float64)
-    hi = np.asarray(hi, dtype=np.float64)
-    if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape:
-        raise GeometryError(f"overlap_groups: expected lo and hi of shape (N, 3), got {lo.shape} and {hi.shape}")
-    if lo.shape[0] == 0:
-        return np.zeros(0, dtype=np.int64)
-    lo_t = np.ascontiguousarray(lo.T)  # (3, N)
-    hi_t = np.ascontiguousarray(hi.T)
-    # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
-    # extent along it): per axis, the boxes starting before each box ends (the pairs that
-    # start before a box starts add the same n (n - 1) / 2 on every axis); numpy's sorts
-    # are vectorised, so the sorting stays outside the compiled code
-    axis = int(np.argmin(_started_before_end(np.sort(lo_t, axis=1), np.sort(hi_t, axis=1))))
-    return _groups(lo_t, hi_t, axis, np.argsort(lo_t[axis]))
+    sweep = OverlapSweep(lo, hi)
+    return sweep.labels([sweep.scan(0)])
 
 
 @nb.njit(cache=True, nogil=True)

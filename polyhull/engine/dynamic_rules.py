@@ -73,9 +73,10 @@ import numpy as np
 from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
-from .boxes import any_overlap, group_bounds, overlap_groups
+from .boxes import OverlapSweep, any_overlap, group_bounds
 from .pieces import PARALLEL_MIN, vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
+from .threads import share
 
 __all__ = [
     "TOUCH_EPS",
@@ -83,7 +84,6 @@ __all__ = [
     "DynamicResult",
     "box_vertices",
     "crosses_sheet_top",
-    "group_boxes",
     "hidden_legs",
     "in_shells",
     "judge_dynamic",
@@ -94,18 +94,15 @@ __all__ = [
 TOUCH_EPS = 1e-4
 """Growth [m] of piece bounding boxes when grouping them into components."""
 
+GROUP_PARTS = 4
+"""Parts of the components' sweep (:class:`polyhull.engine.boxes.OverlapSweep`) shared by
+two threads with the per-piece tests: near the robot (6,000 pieces) the sweep alone took
+6 to 8 ms, and one thread waited for it."""
+
 
 StaticNear = Callable[[ArrayF64, ArrayF64, float, np.ndarray, int], np.ndarray]
 """``(lo, hi, distance, groups, n_groups) -> (n_groups,)``: whether some box of each group,
 grown by ``distance``, meets the surface of R3_static."""
-
-
-def group_boxes(lo: ArrayF64, hi: ArrayF64, eps: float = TOUCH_EPS) -> np.ndarray:
-    """(N,) component label (0..K-1) of boxes [lo, hi] (N, 3): boxes whose growths by
-    ``eps`` overlap are grouped, transitively (pieces that touch or overlap have
-    overlapping bounding boxes, so every true component lies in one group; grouping more
-    only makes the rules fire less)."""
-    return overlap_groups(lo - eps, hi + eps)
 
 
 def box_vertices(lo: ArrayF64, hi: ArrayF64) -> ArrayF64:
@@ -496,7 +493,8 @@ def judge_dynamic(
     and ``at_robot`` (N,) (the piece ends at the robot's shadow start). ``memory`` (N,)
     marks the shadow memory's pieces: they are judged like the others but add no sheet
     boxes (they are the robot's hidden space, not something seen standing there). With a
-    ``pool``, the components are found on one of its threads meanwhile."""
+    ``pool``, the components' sweep and the per-piece tests run on this thread and one of
+    its threads."""
     n = vertices.shape[0]
     if n == 0:
         z = np.zeros((0, 3))
@@ -505,15 +503,30 @@ def judge_dynamic(
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
-    # the components on the pool's thread while this one runs the per-piece tests
-    groups = pool.submit(group_boxes, lo, hi) if pool is not None and n >= PARALLEL_MIN else None
-    grid_touch = ctx.static_touch.any_in(lo, hi)
-    near_robot = at_robot.copy()
-    if len(ctx.robot_spheres):
-        near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
-    inside = in_shells(vertices, ctx) if p.too_thin else np.zeros(n, dtype=bool)
-    sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
-    labels = group_boxes(lo, hi) if groups is None else groups.result()
+
+    def per_piece() -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
+        near_robot = at_robot.copy()
+        if len(ctx.robot_spheres):
+            near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
+        inside = in_shells(vertices, ctx) if p.too_thin else np.zeros(n, dtype=bool)
+        sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
+        return ctx.static_touch.any_in(lo, hi), near_robot, inside, sheet_pairs
+
+    # the components' sweep in parts, and the per-piece tests, on this thread and one of
+    # the pool's (each taking the next task when done: the tests first)
+    two = pool if n >= PARALLEL_MIN else None  # fewer: a thread's wake-up costs more than the work
+    sweep = OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, GROUP_PARTS if two is not None else 1)
+    tests = []
+
+    def task(i: int) -> np.ndarray | None:
+        if i < 0:
+            tests.append(per_piece())
+            return None
+        return sweep.scan(i)
+
+    forests = share(two, task, range(-1, sweep.parts))
+    grid_touch, near_robot, inside, sheet_pairs = tests[0]
+    labels = sweep.labels([f for f in forests if f is not None])
     K = int(labels.max()) + 1
     clo, chi = group_bounds(labels, lo, hi, K)
     cvol = np.bincount(labels, weights=volumes, minlength=K)
