@@ -512,8 +512,11 @@ def judge_dynamic(
         sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
         return ctx.static_touch.any_in(lo, hi), near_robot, inside, sheet_pairs
 
-    # the components' sweep in parts, and the per-piece tests, on this thread and one of
-    # the pool's (each taking the next task when done: the tests first)
+    # The components: boxes whose growths by TOUCH_EPS overlap, transitively (pieces that
+    # touch or overlap have overlapping bounding boxes, so every true component lies in one
+    # group; grouping more only makes the rules fire less). Their sweep in parts, and the
+    # per-piece tests, run on this thread and one of the pool's (each taking the next task
+    # when done: the tests first).
     two = pool if n >= PARALLEL_MIN else None  # fewer: a thread's wake-up costs more than the work
     sweep = OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, GROUP_PARTS if two is not None else 1)
     tests = []
