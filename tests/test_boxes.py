@@ -72,11 +72,16 @@ def test_touching_boxes_group_like_brute_force(seed: int, n: int, cells: int, fl
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.integers(0, 150), parts=st.integers(1, 9), lattice=st.booleans())
-def test_a_sweep_in_parts_gives_the_groups_of_one_scan(seed: int, n: int, parts: int, lattice: bool) -> None:
+@given(
+    seed=st.integers(0, 10_000), n=st.integers(0, 150), parts=st.integers(1, 9), lattice=st.booleans(),
+    inverted=st.integers(0, 5),
+)
+def test_a_sweep_in_parts_gives_the_groups_of_one_scan(seed: int, n: int, parts: int, lattice: bool, inverted: int) -> None:
     """The parts' forests, scanned in any order (as two threads do), join into the labels of
-    one scan; the parts cover every box once."""
+    one scan; the parts cover every box once, also with inverted boxes (lo > hi)."""
     lo, hi = _lattice_boxes(seed, n, 6) if lattice else _random_boxes(seed, n, 1.0)
+    k = min(inverted, n)
+    lo[:k], hi[:k] = hi[:k] + 0.05, lo[:k].copy()
     sweep = OverlapSweep(lo, hi, parts)
     assert sweep.parts == parts and sweep.bounds[0] == 0 and sweep.bounds[-1] == n
     assert np.all(np.diff(sweep.bounds) >= 0)

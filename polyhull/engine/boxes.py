@@ -155,7 +155,7 @@ class OverlapSweep:
         self._order = np.argsort(lo_t[axis])
         self._soa, self._end = _sweep_arrays(lo_t, hi_t, axis, self._order)
         # the parts' first boxes, at equal shares of the candidates
-        cand = np.cumsum(self._end - np.arange(n) - 1)
+        cand = np.cumsum(np.maximum(self._end - np.arange(n) - 1, 0))  # (an inverted box has none)
         total = float(cand[-1]) if n else 0.0
         cuts = np.searchsorted(cand, total * np.arange(1, parts) / parts, side="right")
         self.bounds = np.concatenate([[0], cuts, [n]]).astype(np.int64)
