@@ -436,45 +436,58 @@ def _surfaces(depth, B, T, fs, fe, shadow, rect, near, far, lift, out_free, out_
     seen_lo = np.full(out_tiles.shape, np.inf)
     seen_hi = np.full(out_tiles.shape, -np.inf)
     any_seen = False
-    for tv in range(out_tiles.shape[0]):
-        for tu in range(out_tiles.shape[1]):
-            if not out_tiles[tv, tu]:
-                continue
-            for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
-                for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
-                    if fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
-                        continue
-                    whole = True
-                    for qv in range(v - 1, v + 2):
-                        for qu in range(u - 1, u + 2):
-                            whole &= _in_front(depth[qv, qu], T[qv, qu], near, far)
-                    if not whole:
-                        continue
-                    surface[v, u] = True
+    # the marked tiles' pixels off the image's border (the 3 x 3 tests): (tv, tu, v0, v1, u0, u1)
+    cells = _tile_cells(out_tiles, tile, 1, H - 1, 1, W - 1)
+    for k in range(cells.shape[0]):
+        tv, tu = cells[k, 0], cells[k, 1]
+        for v in range(cells[k, 2], cells[k, 3]):
+            for u in range(cells[k, 4], cells[k, 5]):
+                if fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                    continue
+                whole = True
+                for qv in range(v - 1, v + 2):
+                    for qu in range(u - 1, u + 2):
+                        whole &= _in_front(depth[qv, qu], T[qv, qu], near, far)
+                if not whole:
+                    continue
+                surface[v, u] = True
+                _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
+                d = np.float64(depth[v, u])
+                on_robot = v >= sv0 and v <= sv1 and u >= su0 and u <= su1 and shadow[v, u] < np.inf
+                if not on_robot and np.float64(B[v, u]) - d <= lift:
+                    seen_lo[tv, tu] = min(seen_lo[tv, tu], d)
+                    seen_hi[tv, tu] = max(seen_hi[tv, tu], d)
+                    any_seen = True
+    for k in range(cells.shape[0]):  # then their borders (the interior is complete)
+        for v in range(cells[k, 2], cells[k, 3]):
+            for u in range(cells[k, 4], cells[k, 5]):
+                if surface[v, u] or fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
+                    continue
+                if not _in_front(depth[v, u], T[v, u], near, far):
+                    continue
+                border = False
+                for qv in range(v - 1, v + 2):
+                    for qu in range(u - 1, u + 2):
+                        border |= surface[qv, qu]
+                if border:
                     _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
-                    d = np.float64(depth[v, u])
-                    on_robot = v >= sv0 and v <= sv1 and u >= su0 and u <= su1 and shadow[v, u] < np.inf
-                    if not on_robot and np.float64(B[v, u]) - d <= lift:
-                        seen_lo[tv, tu] = min(seen_lo[tv, tu], d)
-                        seen_hi[tv, tu] = max(seen_hi[tv, tu], d)
-                        any_seen = True
-    for tv in range(out_tiles.shape[0]):
-        for tu in range(out_tiles.shape[1]):
-            if not out_tiles[tv, tu]:
-                continue
-            for v in range(max(tv * tile, 1), min((tv + 1) * tile, H - 1)):
-                for u in range(max(tu * tile, 1), min((tu + 1) * tile, W - 1)):
-                    if surface[v, u] or fe[v, u] <= fs[v, u] or not out_free[v, u] < out_end[v, u]:
-                        continue
-                    if not _in_front(depth[v, u], T[v, u], near, far):
-                        continue
-                    border = False
-                    for qv in range(v - 1, v + 2):
-                        for qu in range(u - 1, u + 2):
-                            border |= surface[qv, qu]
-                    if border:
-                        _surface_end(out_end, fe, shadow, v, u, sv0, sv1, su0, su1)
     return seen_lo, seen_hi, any_seen
+
+
+@nb.njit(cache=True, nogil=True)
+def _tile_cells(tiles, tile, v_lo, v_hi, u_lo, u_hi):  # pragma: no cover - compiled
+    """(m, 6) the marked ``tiles`` (edge ``tile`` px) as rows (tv, tu, v0, v1, u0, u1): their
+    pixel ranges [v0, v1) x [u0, u1), clipped to [v_lo, v_hi) x [u_lo, u_hi)."""
+    out = np.empty((int(tiles.sum()), 6), dtype=np.int64)
+    m = 0
+    for tv in range(tiles.shape[0]):
+        for tu in range(tiles.shape[1]):
+            if tiles[tv, tu]:
+                out[m, 0], out[m, 1] = tv, tu
+                out[m, 2], out[m, 3] = max(tv * tile, v_lo), min((tv + 1) * tile, v_hi)
+                out[m, 4], out[m, 5] = max(tu * tile, u_lo), min((tu + 1) * tile, u_hi)
+                m += 1
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
