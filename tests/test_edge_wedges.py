@@ -18,7 +18,7 @@ from conftest import (
 
 from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
-from polyhull.engine.edge_wedges import EdgeWedges
+from polyhull.engine.edge_wedges import EdgeWedges, robot_boxes
 from polyhull.engine.pixels import BLOCK, WEDGE_REACH, PixelBuffers, classify_frame, prepare_static
 from polyhull.engine.static_model import StaticCamera
 from polyhull.monitor import Monitor
@@ -75,6 +75,29 @@ def test_an_edge_wedge_runs_to_its_own_free_depth_only_next_to_something_seen() 
     D4[v, u] = static.reference[v, u]
     cls = _classify(static, D4, buffers, wedge)
     assert cls.end[v, u] == static.own_free[v, u] and cls.free[v, u] >= cls.end[v, u]
+
+
+def test_a_robot_piece_with_a_vertex_behind_a_camera_or_not_a_number_covers_the_whole_image(
+    paper: tuple[Monitor, Simulator],
+) -> None:
+    """The image boxes that decide which wedges and sheet tiles the robot's shadow may meet:
+    a piece not wholly in front of the camera (or with a NaN vertex) is the whole image, a
+    piece outside the image is none, a piece in view its grown vertex rectangle."""
+    monitor, _ = paper
+    cam = monitor.cell.cameras[0]
+    H, W = cam.shape
+    corners = np.array([[x, y, z] for x in (-0.1, 0.1) for y in (-0.1, 0.1) for z in (2.9, 3.1)])
+    cube = cam.camera_to_world(corners)  # 3 m ahead, on the optical axis
+    behind = cube.copy()
+    behind[0] = cam.camera_to_world(np.array([[0.0, 0.0, -1.0]]))[0]  # one vertex behind the camera
+    nan = cube.copy()
+    nan[3, 1] = np.nan
+    outside = cam.camera_to_world(corners + np.array([40.0, 0.0, 0.0]))  # far to the side
+    boxes = robot_boxes([cam], [cube, behind, nan, outside])[0]
+    assert boxes is not None and len(boxes) == 3  # the piece outside the image is left out
+    assert W / 2 > boxes[0, 0] > 0 and W / 2 < boxes[0, 1] < W and H / 2 > boxes[0, 2] > 0 and H / 2 < boxes[0, 3] < H
+    for row in boxes[1:]:
+        assert row.tolist() == [-np.inf, np.inf, -np.inf, np.inf, 0.0]
 
 
 def test_every_wedge_a_robot_shadow_meets_is_a_candidate(paper: tuple[Monitor, Simulator]) -> None:

@@ -87,18 +87,20 @@ def _piece_boxes(verts, sizes, T, fx, fy, cx, cy, W, H, tau_a, tau_min, binary, 
         ymin = np.inf
         ymax = -np.inf
         zmin = np.inf
+        bad = False
         for q in range(j, j + sizes[p]):
             x, y, z = verts[q, 0], verts[q, 1], verts[q, 2]
             pz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
             px = (T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]) / pz
             py = (T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]) / pz
+            bad |= not (pz > 1e-9 and px == px and py == py)  # (NaN: min and max would skip it)
             xmin = min(xmin, px)
             xmax = max(xmax, px)
             ymin = min(ymin, py)
             ymax = max(ymax, py)
             zmin = min(zmin, pz)
         j += sizes[p]
-        if zmin <= 1e-9:  # a vertex not in front of the camera: the whole image
+        if bad:  # a vertex not in front of the camera, or not a number: the whole image
             out[n, 0], out[n, 1], out[n, 2], out[n, 3], out[n, 4] = -np.inf, np.inf, -np.inf, np.inf, 0.0
             n += 1
             continue
