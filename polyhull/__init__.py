@@ -38,7 +38,7 @@ if TYPE_CHECKING:
     from .frames import save_frames as save_frames
     from .intrinsics_io import read_intrinsics_file as read_intrinsics_file
     from .monitor import Monitor as Monitor
-    from .monitor import Verdict as Verdict
+    from .verdict import Verdict as Verdict
     from .person import PersonTrack as PersonTrack
     from .person import make_person as make_person
     from .person import sample_points_inside as sample_points_inside
@@ -77,7 +77,7 @@ _LAZY = {
     "save_frames": ".frames",
     "read_intrinsics_file": ".intrinsics_io",
     "Monitor": ".monitor",
-    "Verdict": ".monitor",
+    "Verdict": ".verdict",
     "PersonTrack": ".person",
     "make_person": ".person",
     "sample_points_inside": ".person",

@@ -45,7 +45,7 @@ def record_of(verdict: Any, *, true_distance: float | None = None) -> dict[str, 
     """The timeline record of one verdict (never reads the lazily built regions).
 
     Args:
-        verdict: A :class:`polyhull.monitor.Verdict`.
+        verdict: A :class:`polyhull.verdict.Verdict`.
         true_distance: The true distance of the target to the robot [m], when known
             (a simulation); None otherwise.
 

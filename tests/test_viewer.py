@@ -102,7 +102,7 @@ class Removed:
 
 @dataclass(frozen=True)
 class FakeVerdict:
-    """Duck type of polyhull.monitor.Verdict with the fields the viewer reads."""
+    """Duck type of polyhull.verdict.Verdict with the fields the viewer reads."""
 
     hull: m3.Manifold
     robot_occlusion: m3.Manifold

@@ -91,7 +91,7 @@ class RobotLike(Protocol):
 
 
 class RemovedLike(Protocol):
-    """A component removed by a plausibility rule (see :class:`polyhull.monitor.Verdict`)."""
+    """A component removed by a plausibility rule (see :class:`polyhull.verdict.Verdict`)."""
 
     @property
     def rule(self) -> str: ...
@@ -117,7 +117,7 @@ class DistanceLike(Protocol):
 
 
 class VerdictLike(DistanceLike, Protocol):
-    """The fields of :class:`polyhull.monitor.Verdict` the viewer draws."""
+    """The fields of :class:`polyhull.verdict.Verdict` the viewer draws."""
 
     @property
     def hull(self) -> m3.Manifold: ...
@@ -429,7 +429,7 @@ def draw_verdict(
 
     Args:
         vis: A meshcat visualizer (e.g. your controller's), or a :class:`StaticVisualizer`.
-        verdict: A ``polyhull.monitor.Verdict`` (or anything with its fields).
+        verdict: A ``polyhull.verdict.Verdict`` (or anything with its fields).
         prefix: Root path; use the prefix of :func:`draw_cell` so both share the frame.
         robot: The robot model: the static region is split at ``style.static_margin``
             around it, and the closest link is outlined. Without it, the static region is
