@@ -38,7 +38,6 @@ if TYPE_CHECKING:
     from .frames import save_frames as save_frames
     from .intrinsics_io import read_intrinsics_file as read_intrinsics_file
     from .monitor import Monitor as Monitor
-    from .verdict import Verdict as Verdict
     from .person import PersonTrack as PersonTrack
     from .person import make_person as make_person
     from .person import sample_points_inside as sample_points_inside
@@ -50,6 +49,7 @@ if TYPE_CHECKING:
     from .simulator import Simulator as Simulator
     from .speed import SpeedDecision as SpeedDecision
     from .speed import decide_speed as decide_speed
+    from .verdict import Verdict as Verdict
 
 # The public names are imported when first used (PEP 562), so ``polyhull --help`` and the
 # error paths of the command line do not pay for trimesh, manifold3d and numba.

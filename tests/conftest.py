@@ -144,10 +144,10 @@ def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie in the padded robot's occlusion M of the monitor's last cycle
     by its definition (SPEC section 2, ``M = F_static minus F_static+robot``, k of n): at
     least k cameras free them in the empty cell, fewer with the robot
-    (:func:`polyhull.commands.bench.padded_robot_occlusion`). Stricter than "in some
+    (:func:`polyhull.oracles.padded_robot_occlusion`). Stricter than "in some
     camera's robot shadow", which excuses a point one camera cannot see though another
     sees it."""
-    from polyhull.commands.bench import padded_robot_occlusion
+    from polyhull.oracles import padded_robot_occlusion
 
     return padded_robot_occlusion(monitor, points)
 
@@ -165,9 +165,9 @@ def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
         r = monitor.last_images.raster.get(cam.name)
         if r is None:
             continue
-        from polyhull.commands.bench import _pixels
+        from polyhull.oracles import pixels_of
 
-        ui, vi, z, ok = _pixels(cam, points)
+        ui, vi, z, ok = pixels_of(cam, points)
         cov = ok & r.covered[vi, ui]
         some |= cov
         every &= ~cov | ((z >= r.front[vi, ui]) & (z <= r.back[vi, ui]))
@@ -222,13 +222,13 @@ def lost_points(monitor: Monitor, frames: dict, verdict, points: np.ndarray) -> 
     """The ``points`` (in Z) of a target the verdict loses: outside R3 (the static region
     and the kept dynamic pieces) and not excused (in M by its definition, in a solid, or
     not possibly occupied by the exact free depth of ``frames``)."""
-    from polyhull.commands.bench import _solid
     from polyhull.distance import points_in_hexahedra
+    from polyhull.oracles import in_solids
 
     in_r3 = manifold_contains(monitor.static.region, points) | points_in_hexahedra(points, verdict._geometry.kept)
     excused = (
         in_robot_occlusion(monitor, points)
-        | _solid(monitor.cell, points)
+        | in_solids(monitor.cell, points)
         | ~exactly_possibly_occupied(monitor, frames, points)
     )
     return points[~(in_r3 | excused)]  # type: ignore[no-any-return]

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from polyhull.cell import Cell, mesh_to_manifold
-from polyhull.commands.bench import (
+from polyhull.monitor import Monitor
+from polyhull.oracles import (
     ExactHullGap,
     banded_free,
     engine_r2,
@@ -22,7 +23,6 @@ from polyhull.commands.bench import (
     padded_robot_occlusion,
     padded_robot_shadow,
 )
-from polyhull.monitor import Monitor
 from polyhull.person import make_person
 from polyhull.simulator import SensorEffects, Simulator
 

@@ -18,12 +18,13 @@ import pytest
 from conftest import exactly_possibly_occupied, in_robot_occlusion, in_robot_span, manifold_contains
 
 from polyhull.cellfile import default_cell_path, load_cell
-from polyhull.commands.bench import _solid, rescale_camera
+from polyhull.commands.bench import rescale_camera
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import STATIC_TOLERANCE, points_in_hexahedra
 from polyhull.engine.memory import seen_parts
 from polyhull.engine.pieces import CameraStack, piece_vertices
 from polyhull.monitor import Monitor
+from polyhull.oracles import in_solids
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
@@ -96,7 +97,7 @@ def test_a_person_at_the_robot_is_in_r3_or_in_m(color: tuple[Monitor, Simulator]
     assert not v.faults, v.faults
     body = sample_points_inside(person, 600, seed=3)
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body) | in_robot_occlusion(monitor, body)
+    ok = in_r3 | in_solids(cell, body) | ~exactly_possibly_occupied(monitor, frames, body) | in_robot_occlusion(monitor, body)
     assert ok.all(), f"{(~ok).sum()} body points outside R3 and M: {body[~ok][:5]}"
     assert in_r3.mean() > 0.9
 
@@ -129,7 +130,7 @@ def test_the_memory_holds_what_m_hides_in_front_of_the_robot(color: tuple[Monito
     hidden &= near_seeds
     assert hidden.sum() >= 5  # the scene tests the memory
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    lost = hidden & ~in_r3 & ~_solid(cell, body)
+    lost = hidden & ~in_r3 & ~in_solids(cell, body)
     assert not lost.any(), f"{lost.sum()} of {hidden.sum()} body points in M not held: {body[lost][:5]}"
     # the front part's segments: on the robot's pixels, from the free depth to the padded
     # robot's front, none behind it

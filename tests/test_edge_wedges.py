@@ -16,12 +16,12 @@ from conftest import (
     robot_shadow_poses,
 )
 
-from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.engine.edge_wedges import EdgeWedges, robot_boxes
 from polyhull.engine.pixels import BLOCK, WEDGE_REACH, PixelBuffers, classify_frame, prepare_static
 from polyhull.engine.static_model import StaticCamera
 from polyhull.monitor import Monitor
+from polyhull.oracles import in_solids
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
@@ -142,7 +142,7 @@ def test_a_person_behind_a_static_edge_and_the_robot_stays_in_r3(paper: tuple[Mo
         v = monitor.step(frames, q, stamp=1.0)
         assert not v.faults
         in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)
-        excused = in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+        excused = in_robot_occlusion(monitor, body) | in_solids(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
         lost = body[~(in_r3 | excused)]
         assert len(lost) == 0, (effects, lost[:5].tolist())
     monitor.reset()

@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from polyhull.cellfile import default_cell_path
-from polyhull.commands.bench import _solid, dynamic_volume_outside_static
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
 from polyhull.engine.memory import SEED_DEPTH, seen_parts
 from polyhull.engine.pieces import CameraStack
 from polyhull.monitor import Monitor
+from polyhull.oracles import dynamic_volume_outside_static, in_solids
 from polyhull.simulator import SensorEffects, Simulator
 
 CYCLES = 12
@@ -80,7 +80,7 @@ def test_dynamic_volume_outside_static_matches_a_point_oracle(paper: tuple[Monit
     inside = (
         points_in_hexahedra(p, kept)
         & ~monitor.static.hull_contains(p)
-        & ~_solid(monitor.cell, p)
+        & ~in_solids(monitor.cell, p)
         & np.all((p >= zone.min) & (p <= zone.max), axis=1)
     )
     sample = np.where(inside, 1.0 / cover, 0.0) * box_volumes.sum()

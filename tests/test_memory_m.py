@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 
 import polyhull.monitor as monitor_module
 from polyhull.cellfile import default_cell_path, load_cell
-from polyhull.commands.bench import _pixels, _solid, rescale_camera
+from polyhull.commands.bench import rescale_camera
 from polyhull.distance import points_in_hexahedra
 from polyhull.engine.memory import ShadowMemory
 from polyhull.engine.pieces import (
@@ -37,6 +37,7 @@ from polyhull.engine.pieces import (
     carve,
 )
 from polyhull.monitor import Monitor
+from polyhull.oracles import in_solids, pixels_of
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
@@ -94,7 +95,7 @@ def test_carving_with_the_m_test_keeps_every_point_of_c_n_m(seed: int, k: int, p
     fx, fy, cx, cy = stack.intr[0]
     pc = np.column_stack([(uv[:, 0] - cx) / fx * z, (uv[:, 1] - cy) / fy * z, z])
     world = pc @ stack.R_wc[0].T + stack.t_wc[0]
-    ui, vi, z1, seen = _pixels(cell.cameras[1], world)
+    ui, vi, z1, seen = pixels_of(cell.cameras[1], world)
     seen &= z1 > cell.cameras[1].near  # (a camera frees nothing before its near plane)
     z1 = np.where(seen, z1, -np.inf)
 
@@ -211,7 +212,7 @@ def test_what_the_m_test_drops_from_the_memory_is_in_the_region_or_free(color_k:
     assert monitor.last_images is not None
     n_free = np.zeros(len(pts), dtype=int)
     for cam in monitor.cell.cameras:
-        ui, vi, z, ok = _pixels(cam, pts)
+        ui, vi, z, ok = pixels_of(cam, pts)
         n_free += ok & (z < np.where(ok, monitor.last_images.free[cam.name][vi, ui], -np.inf))
     # the memory is what comes within a person's reach of the seeds: a coarse piece that
     # does at a corner stands for more, and its finer pieces beyond reach are dropped
@@ -273,7 +274,7 @@ def test_the_memory_holds_the_band_before_the_robot(paper: tuple[Monitor, Simula
             gap = np.minimum(gap, np.linalg.norm(np.maximum(np.maximum(a - body, body - b), 0.0), axis=1))
         held = (
             (gap <= reach) & in_robot_occlusion(monitor, body) & exactly_possibly_occupied(monitor, frames, body)
-            & ~in_robot_span(monitor, body) & ~_solid(cell, body)
+            & ~in_robot_span(monitor, body) & ~in_solids(cell, body)
         )
         checked += int(held.sum())
         in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]

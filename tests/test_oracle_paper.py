@@ -22,9 +22,9 @@ from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_con
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
 
-from polyhull.commands.bench import _solid
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
+from polyhull.oracles import in_solids
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
@@ -55,7 +55,7 @@ def test_random_scenes_have_no_misses_and_keep_the_person(
     assert robot is not None
     # the person stands on the floor, not in an obstacle nor on the robot's base
     feet = np.array([[x, y, 0.3], [x, y, 1.0]])
-    assume(not _solid(cell, feet).any() and np.hypot(x - 3.0, y - 3.0) > 0.45)
+    assume(not in_solids(cell, feet).any() and np.hypot(x - 3.0, y - 3.0) > 0.45)
     q = robot.lower + np.asarray(q01) * (robot.upper - robot.lower)
     person = make_person(pose=pose, position=(x, y), yaw=yaw)  # type: ignore[arg-type]
     # flying pixels are real readings between a person and the background: the exact free
@@ -74,12 +74,12 @@ def test_random_scenes_have_no_misses_and_keep_the_person(
     occupied = exactly_possibly_occupied(monitor, frames, points)
     assert occupied.sum() > 100  # the oracle tests something
     in_r2 = monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
-    misses = occupied & ~in_r2 & ~in_robot_occlusion(monitor, points) & ~_solid(cell, points)
+    misses = occupied & ~in_r2 & ~in_robot_occlusion(monitor, points) & ~in_solids(cell, points)
     assert not misses.any(), f"{misses.sum()} exactly occupied points outside R2: {points[misses][:5]}"
     body = sample_points_inside(person, 200, seed=seed)
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+    ok = in_r3 | in_robot_occlusion(monitor, body) | in_solids(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} person points outside R3: {body[~ok][:5]}"
 
 
@@ -126,7 +126,7 @@ def test_people_beside_an_obstacle_stay_in_r3(
         rng = np.random.default_rng(seed)
         people.append(make_person(pose="walking", position=tuple(rng.uniform(0.4, 5.6, 2)), yaw=float(rng.uniform(-3, 3))))
     bodies = [sample_points_inside(p, 300, seed=seed + j) for j, p in enumerate(people)]
-    assume(all(_solid(cell, b).mean() <= 0.01 for b in bodies))  # nobody inside a solid
+    assume(all(in_solids(cell, b).mean() <= 0.01 for b in bodies))  # nobody inside a solid
     q = robot.lower + np.asarray(q01) * (robot.upper - robot.lower)
     chosen = {"none": SensorEffects.none(), "all": SensorEffects(), "no flying pixels": SensorEffects(flying_pixels=False)}
     frames = sim.render(q, targets=people, seed=seed, stamp=1.0, effects=chosen[effects])
@@ -137,7 +137,7 @@ def test_people_beside_an_obstacle_stay_in_r3(
     body = np.concatenate(bodies)
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
-    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
+    ok = in_r3 | in_robot_occlusion(monitor, body) | in_solids(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)
     assert ok.all(), f"{(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
 
 
@@ -149,7 +149,7 @@ def _assert_body_in_r3(monitor: Monitor, frames: object, v: object, person: obje
     body = sample_points_inside(person, 300, seed=seed)  # type: ignore[arg-type]
     body = body[cell.zone.contains(body)]
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[attr-defined]
-    ok = in_r3 | in_robot_occlusion(monitor, body) | _solid(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)  # type: ignore[arg-type]
+    ok = in_r3 | in_robot_occlusion(monitor, body) | in_solids(cell, body) | ~exactly_possibly_occupied(monitor, frames, body)  # type: ignore[arg-type]
     assert ok.all(), f"cycle {cycle}: {(~ok).sum()} of {len(body)} body points outside R3: {body[~ok][:5]}"
 
 

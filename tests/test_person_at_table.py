@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains
 
-from polyhull.commands.bench import _solid
 from polyhull.commands.demo import robot_motion
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
+from polyhull.oracles import in_solids
 from polyhull.person import make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
@@ -71,7 +71,7 @@ def test_legs_against_a_side_stay_in_r3(
     assert not v.faults, v.faults
     body = sample_points_inside(person, 400, seed=1)
     body = body[cell.zone.contains(body)]
-    solid = _solid(cell, body)
+    solid = in_solids(cell, body)
     # the scene has what the test is about: body points low in a side's sheet
     sheets = [s for s in monitor.static.sheets if s.axis != 2]
     local = [(body @ s.to_local()[:, :3].T + s.to_local()[:, 3]) for s in sheets]
@@ -110,7 +110,7 @@ def test_a_toe_in_the_corner_of_a_wall_a_rack_and_the_floor_stays_in_r3(paper: t
     v = monitor.step(frames, q, stamp=1.0)
     assert not v.faults, v.faults
     body = np.concatenate([sample_points_inside(people[0], 3000, seed=14325), [[0.03489022, 5.24571316, 0.03792137]]])
-    body = body[cell.zone.contains(body) & ~_solid(cell, body)]
+    body = body[cell.zone.contains(body) & ~in_solids(cell, body)]
     corner = (body[:, 0] < 0.15) & (body[:, 1] > 5.1) & (body[:, 1] < 5.25) & (body[:, 2] < 0.3)
     assert corner.sum() >= 1  # the scene has what the test is about
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
@@ -139,7 +139,7 @@ def test_fingers_between_a_table_and_the_wall_stay_in_r3(paper: tuple[Monitor, S
     v = monitor.step(frames, q, stamp=t)
     assert not v.faults, v.faults
     body = np.concatenate([sample_points_inside(person, 3000, seed=26406), [[3.6677032367600617, 0.045138113487146435, 0.7980142518148217]]])
-    body = body[cell.zone.contains(body) & ~_solid(cell, body)]
+    body = body[cell.zone.contains(body) & ~in_solids(cell, body)]
     gap = (body[:, 1] < 0.05) & (body[:, 0] < 3.8) & (body[:, 2] > 0.7)
     assert gap.sum() >= 1  # the scene has what the test is about
     in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
