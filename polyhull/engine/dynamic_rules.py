@@ -503,36 +503,9 @@ def judge_dynamic(
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
-
-    def per_piece() -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
-        near_robot = at_robot.copy()
-        if len(ctx.robot_spheres):
-            near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
-        inside = in_shells(vertices, ctx) if p.too_thin else np.zeros(n, dtype=bool)
-        sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
-        return ctx.static_touch.any_in(lo, hi), near_robot, inside, sheet_pairs
-
-    # The components: boxes whose growths by TOUCH_EPS overlap, transitively (pieces that
-    # touch or overlap have overlapping bounding boxes, so every true component lies in one
-    # group; grouping more only makes the rules fire less). Their sweep in parts, and the
-    # per-piece tests, run on this thread and one of the pool's (each taking the next task
-    # when done: the tests first).
-    two = pool if n >= PARALLEL_MIN else None  # fewer: a thread's wake-up costs more than the work
-    sweep = OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, GROUP_PARTS if two is not None else 1)
-    tests = []
-
-    def task(i: int) -> np.ndarray | None:
-        if i < 0:
-            tests.append(per_piece())
-            return None
-        return sweep.scan(i)
-
-    forests = share(two, task, range(-1, sweep.parts))
-    grid_touch, near_robot, inside, sheet_pairs = tests[0]
-    labels = sweep.labels([f for f in forests if f is not None])
-    K = int(labels.max()) + 1
-    clo, chi = group_bounds(labels, lo, hi, K)
-    cvol = np.bincount(labels, weights=volumes, minlength=K)
+    c = _components(vertices, lo, hi, volumes, at_robot, ctx, pool)
+    labels, K, clo, chi = c.labels, c.n_components, c.lo, c.hi
+    grid_touch, near_robot, inside, sheet_pairs = c.grid_touch, c.near_robot, c.inside, c.sheet_pairs
 
     zmin, zmax = np.asarray(ctx.zone.min, dtype=np.float64), np.asarray(ctx.zone.max, dtype=np.float64)
     boundary = np.any(clo[:, :2] <= zmin[:2] + eps, axis=1) | np.any(chi[:, :2] >= zmax[:2] - eps, axis=1)
@@ -607,19 +580,7 @@ def judge_dynamic(
     removed_c = rule_of != ""
     keep = ~removed_c[labels] & ~shell_cut
 
-    removed = []
-    # each component's pieces, in order (one sort, not a pass over all pieces per component)
-    by_label = np.argsort(labels, kind="stable")
-    starts = np.searchsorted(labels[by_label], np.arange(K + 1))
-    for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
-        idx = by_label[starts[k] : starts[k + 1]]
-        idx = idx[shell_cut[idx]]
-        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
-        removed.append(RemovedComponent("too_thin", float(volumes[idx].sum()), centroid, LazyMesh(make_mesh, idx)))
-    for k in np.nonzero(removed_c)[0]:
-        idx = by_label[starts[k] : starts[k + 1]]
-        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(float(volumes[idx].sum()), 1e-12)
-        removed.append(RemovedComponent(str(rule_of[k]), float(cvol[k]), centroid, LazyMesh(make_mesh, idx)))
+    removed = _removed(labels, K, lo, hi, volumes, shell_cut, removed_c, rule_of, c.volume, make_mesh)
 
     kept_k = np.unique(labels[keep])
     # Only components that pass too_small and flying on their own (not only because they
@@ -634,7 +595,98 @@ def judge_dynamic(
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
     legs = hidden_legs(lo, hi, own & touch_m[labels], ctx) if p.too_thin else np.zeros((0, 8, 3))
-    return DynamicResult(keep, labels, own, spared, inside, tuple(removed), clo[kept_k], chi[kept_k], seeds, legs)
+    return DynamicResult(keep, labels, own, spared, inside, removed, clo[kept_k], chi[kept_k], seeds, legs)
+
+
+class _Components(NamedTuple):
+    """The components of the dynamic pieces, and the per-piece tests the rules read."""
+
+    labels: np.ndarray  # (N,) component of every piece
+    n_components: int  # K
+    lo: ArrayF64  # (K, 3) their bounding boxes
+    hi: ArrayF64
+    volume: ArrayF64  # (K,) their volumes [m^3] (overlapping pieces count twice)
+    grid_touch: np.ndarray  # (N,) the piece may touch R3_static (the touch grid)
+    near_robot: np.ndarray  # (N,) the piece ends at the robot's shadow or meets its balls
+    inside: np.ndarray  # (N,) the piece lies inside a shell or a noise sheet
+    sheet_pairs: tuple | None  # (piece, sheet) pairs of the flying rule (None without it)
+
+
+def _components(
+    vertices: ArrayF64,
+    lo: ArrayF64,
+    hi: ArrayF64,
+    volumes: ArrayF64,
+    at_robot: np.ndarray,
+    ctx: DynamicContext,
+    pool: Executor | None,
+) -> _Components:
+    """The components: boxes whose growths by TOUCH_EPS overlap, transitively (pieces that
+    touch or overlap have overlapping bounding boxes, so every true component lies in one
+    group; grouping more only makes the rules fire less). Their sweep in parts, and the
+    per-piece tests, run on this thread and one of the pool's (each taking the next task
+    when done: the tests first)."""
+    p = ctx.params
+    eps = p.support_eps
+    n = len(vertices)
+
+    def per_piece() -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple | None]:
+        near_robot = at_robot.copy()
+        if len(ctx.robot_spheres):
+            near_robot |= _near_balls(lo, hi, np.ascontiguousarray(ctx.robot_spheres, dtype=np.float64), eps)
+        inside = in_shells(vertices, ctx) if p.too_thin else np.zeros(n, dtype=bool)
+        sheet_pairs = _sheet_pairs(vertices, ctx.sheets, eps) if p.flying else None
+        return ctx.static_touch.any_in(lo, hi), near_robot, inside, sheet_pairs
+
+    two = pool if n >= PARALLEL_MIN else None  # fewer: a thread's wake-up costs more than the work
+    sweep = OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, GROUP_PARTS if two is not None else 1)
+    tests = []
+
+    def task(i: int) -> np.ndarray | None:
+        if i < 0:
+            tests.append(per_piece())
+            return None
+        return sweep.scan(i)
+
+    forests = share(two, task, range(-1, sweep.parts))
+    labels = sweep.labels([f for f in forests if f is not None])
+    K = int(labels.max()) + 1
+    clo, chi = group_bounds(labels, lo, hi, K)
+    volume = np.asarray(np.bincount(labels, weights=volumes, minlength=K), dtype=np.float64)
+    return _Components(labels, K, clo, chi, volume, *tests[0])
+
+
+def _removed(
+    labels: np.ndarray,
+    K: int,
+    lo: ArrayF64,
+    hi: ArrayF64,
+    volumes: ArrayF64,
+    shell_cut: np.ndarray,
+    removed_c: np.ndarray,
+    rule_of: np.ndarray,
+    component_volume: ArrayF64,
+    make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
+) -> tuple[RemovedComponent, ...]:
+    """The removals to report: per component, its pieces the shell rule cut (``too_thin``),
+    then every component a rule removed whole (``rule_of``, of ``component_volume``),
+    with volume and centroid."""
+    removed = []
+    # each component's pieces, in order (one sort, not a pass over all pieces per component)
+    by_label = np.argsort(labels, kind="stable")
+    starts = np.searchsorted(labels[by_label], np.arange(K + 1))
+
+    def one(rule: str, idx: np.ndarray, volume: float | None = None) -> RemovedComponent:
+        vol = float(volumes[idx].sum())
+        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(vol, 1e-12)
+        return RemovedComponent(rule, vol if volume is None else volume, centroid, LazyMesh(make_mesh, idx))
+
+    for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
+        idx = by_label[starts[k] : starts[k + 1]]
+        removed.append(one("too_thin", idx[shell_cut[idx]]))
+    for k in np.nonzero(removed_c)[0]:
+        removed.append(one(str(rule_of[k]), by_label[starts[k] : starts[k + 1]], float(component_volume[k])))
+    return tuple(removed)
 
 
 LEG_TOP = 1.0
