@@ -427,63 +427,15 @@ def _cross_matrix(a: ArrayF64) -> ArrayF64:
 def _parse_kinematics(urdf, path: Path) -> tuple[_Kinematics, list, ArrayF64, ArrayF64, ArrayF64]:
     """Validate the tree and the joints; returns kinematics, actuated joints, limits."""
     robot = urdf.robot
-    link_names = [link.name for link in robot.links]
-    joint_names = [joint.name for joint in robot.joints]
-    for what, names in (("link", link_names), ("joint", joint_names)):
-        dup = sorted({n for n in names if names.count(n) > 1})
-        if dup:
-            raise RobotError(f"{path}: {what} names must be unique, repeated: {dup}")
-    if not link_names:
-        raise RobotError(f"{path}: the URDF has no <link>")
-    joints_by_name = {joint.name: joint for joint in robot.joints}
-    child_of: dict[str, str] = {}
-    for joint in robot.joints:
-        where = f"{path}: joint '{joint.name}'"
-        if joint.type not in _JOINT_KINDS:
-            raise RobotError(
-                f"{where}: type {joint.type!r} is not supported; expected one of "
-                f"{sorted(_JOINT_KINDS)}"
-            )
-        for role, link in (("parent", joint.parent), ("child", joint.child)):
-            if link not in link_names:
-                raise RobotError(f"{where} <{role} link={link!r}>: no such link")
-        if joint.child in child_of:
-            raise RobotError(
-                f"{where}: link '{joint.child}' is already the child of joint "
-                f"'{child_of[joint.child]}'; a URDF is a tree"
-            )
-        child_of[joint.child] = joint.name
-    roots = [name for name in link_names if name not in child_of]
-    if len(roots) != 1:
-        raise RobotError(
-            f"{path}: the URDF must have exactly one root link, found {roots or 'none (a cycle)'}"
-        )
-
+    link_names, root = _check_tree(robot, path)
     # Actuated joints in URDF order (as yourdfpy), then their limits.
     actuated = [j for j in robot.joints if j.type != "fixed" and j.mimic is None]
     if not actuated:
         raise RobotError(f"{path}: the URDF has no actuated joint (all joints are fixed or mimic)")
+    lower, upper, velocity = _joint_limits(actuated, path)
+    frames, ordered = _tree_order(robot, link_names, root, path)
     index = {j.name: i for i, j in enumerate(actuated)}
-    lower, upper, velocity = [], [], []
-    for joint in actuated:
-        where = f"{path}: joint '{joint.name}' <limit>"
-        limit = joint.limit
-        if joint.type == "continuous":
-            lo, hi = -np.inf, np.inf
-        else:
-            if limit is None or limit.lower is None or limit.upper is None:
-                raise RobotError(f"{where}: a {joint.type} joint needs lower and upper limits")
-            lo, hi = float(limit.lower), float(limit.upper)
-            if not (np.isfinite(lo) and np.isfinite(hi)):
-                raise RobotError(f"{where}: lower and upper must be finite, got {lo!r}, {hi!r}")
-            if lo > hi:
-                raise RobotError(f"{where}: lower {lo!r} > upper {hi!r}")
-        v = np.inf if limit is None or limit.velocity is None else float(limit.velocity)
-        if not v > 0:
-            raise RobotError(f"{where}: velocity must be > 0, got {v!r}")
-        lower.append(lo)
-        upper.append(hi)
-        velocity.append(v)
+    joints_by_name = {joint.name: joint for joint in robot.joints}
 
     def drive(joint, seen: tuple[str, ...] = ()) -> tuple[int, float, float]:
         """(index into q, multiplier, offset) of a moving joint, following mimic chains."""
@@ -499,24 +451,6 @@ def _parse_kinematics(urdf, path: Path) -> tuple[_Kinematics, list, ArrayF64, Ar
             raise RobotError(f"{where}: multiplier and offset must be finite")
         src, m, o = drive(target, (*seen, joint.name))
         return src, mult * m, mult * o + off
-
-    # Sort the tree root first (children in URDF joint order).
-    children: dict[str, list] = {name: [] for name in link_names}
-    for joint in robot.joints:
-        children[joint.parent].append(joint)
-    frames = [roots[0]]
-    frame_index = {roots[0]: 0}
-    ordered = []
-    stack = list(reversed(children[roots[0]]))
-    while stack:
-        joint = stack.pop()
-        frame_index[joint.child] = len(frames)
-        frames.append(joint.child)
-        ordered.append(joint)
-        stack.extend(reversed(children[joint.child]))
-    if len(frames) != len(link_names):
-        missing = sorted(set(link_names) - set(frames))
-        raise RobotError(f"{path}: links {missing} are not connected to the root link '{roots[0]}'")
 
     n = len(ordered)
     origin_R = np.zeros((n, 3, 3))
@@ -543,6 +477,7 @@ def _parse_kinematics(urdf, path: Path) -> tuple[_Kinematics, list, ArrayF64, Ar
         if kind[j] == _REVOLUTE:
             K[j] = _cross_matrix(axis[j])
         source[j], multiplier[j], offset[j] = drive(joint)
+    frame_index = {name: i for i, name in enumerate(frames)}
     kin = _Kinematics(
         frame_names=tuple(frames),
         parent=tuple(frame_index[joint.parent] for joint in ordered),
@@ -556,7 +491,90 @@ def _parse_kinematics(urdf, path: Path) -> tuple[_Kinematics, list, ArrayF64, Ar
         multiplier=multiplier,
         offset=offset,
     )
-    return kin, actuated, np.array(lower), np.array(upper), np.array(velocity)
+    return kin, actuated, lower, upper, velocity
+
+
+def _check_tree(robot, path: Path) -> tuple[list[str], str]:  # noqa: ANN001 - a yourdfpy Robot
+    """The link names and the root link of a URDF whose names are unique, whose joints
+    are of a supported type between existing links, and which is one tree."""
+    link_names = [link.name for link in robot.links]
+    joint_names = [joint.name for joint in robot.joints]
+    for what, names in (("link", link_names), ("joint", joint_names)):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise RobotError(f"{path}: {what} names must be unique, repeated: {dup}")
+    if not link_names:
+        raise RobotError(f"{path}: the URDF has no <link>")
+    child_of: dict[str, str] = {}
+    for joint in robot.joints:
+        where = f"{path}: joint '{joint.name}'"
+        if joint.type not in _JOINT_KINDS:
+            raise RobotError(
+                f"{where}: type {joint.type!r} is not supported; expected one of "
+                f"{sorted(_JOINT_KINDS)}"
+            )
+        for role, link in (("parent", joint.parent), ("child", joint.child)):
+            if link not in link_names:
+                raise RobotError(f"{where} <{role} link={link!r}>: no such link")
+        if joint.child in child_of:
+            raise RobotError(
+                f"{where}: link '{joint.child}' is already the child of joint "
+                f"'{child_of[joint.child]}'; a URDF is a tree"
+            )
+        child_of[joint.child] = joint.name
+    roots = [name for name in link_names if name not in child_of]
+    if len(roots) != 1:
+        raise RobotError(
+            f"{path}: the URDF must have exactly one root link, found {roots or 'none (a cycle)'}"
+        )
+    return link_names, roots[0]
+
+
+def _joint_limits(actuated: list, path: Path) -> tuple[ArrayF64, ArrayF64, ArrayF64]:
+    """(lower, upper, velocity) limits of the actuated joints (a continuous joint's
+    position limits are infinite; a missing velocity limit is infinite)."""
+    lower, upper, velocity = [], [], []
+    for joint in actuated:
+        where = f"{path}: joint '{joint.name}' <limit>"
+        limit = joint.limit
+        if joint.type == "continuous":
+            lo, hi = -np.inf, np.inf
+        else:
+            if limit is None or limit.lower is None or limit.upper is None:
+                raise RobotError(f"{where}: a {joint.type} joint needs lower and upper limits")
+            lo, hi = float(limit.lower), float(limit.upper)
+            if not (np.isfinite(lo) and np.isfinite(hi)):
+                raise RobotError(f"{where}: lower and upper must be finite, got {lo!r}, {hi!r}")
+            if lo > hi:
+                raise RobotError(f"{where}: lower {lo!r} > upper {hi!r}")
+        v = np.inf if limit is None or limit.velocity is None else float(limit.velocity)
+        if not v > 0:
+            raise RobotError(f"{where}: velocity must be > 0, got {v!r}")
+        lower.append(lo)
+        upper.append(hi)
+        velocity.append(v)
+    return np.array(lower), np.array(upper), np.array(velocity)
+
+
+def _tree_order(robot, link_names: list[str], root: str, path: Path) -> tuple[list[str], list]:  # noqa: ANN001
+    """The link frames root first and the joints in that order (children in URDF joint
+    order); every link must hang from the root."""
+    children: dict[str, list] = {name: [] for name in link_names}
+    for joint in robot.joints:
+        children[joint.parent].append(joint)
+    frames = [root]
+    ordered = []
+    stack = list(reversed(children[root]))
+    while stack:
+        joint = stack.pop()
+        frames.append(joint.child)
+        ordered.append(joint)
+        stack.extend(reversed(children[joint.child]))
+    if len(frames) != len(link_names):
+        missing = sorted(set(link_names) - set(frames))
+        raise RobotError(f"{path}: links {missing} are not connected to the root link '{root}'")
+
+    return frames, ordered
 
 
 def _material_rgba(visual, materials: dict) -> ArrayF64 | None:
