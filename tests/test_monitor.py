@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from conftest import exactly_possibly_occupied, manifold_contains
 
 import polyhull.monitor as monitor_module
 from polyhull.errors import GeometryError
@@ -279,3 +280,30 @@ def test_kept_verdicts_do_not_keep_the_rasters(fresh_monitor: Monitor, small_sim
         raster_ids.add(id(images.raster[name].covered))
     assert len(free_ids) == 6  # every kept verdict keeps its own images
     assert len(raster_ids) <= 3
+
+
+def test_a_cell_without_a_robot(small_cell) -> None:  # noqa: ANN001
+    """A cell with no robot: no joint state is needed, no distance is reported (inf, full
+    speed), nothing is the robot's occlusion, and a standing person's points lie in R3 (or
+    are excused: in a solid, or seen free by the exact per-pixel free depth)."""
+    from dataclasses import replace
+
+    from polyhull.distance import points_in_hexahedra
+    from polyhull.oracles import in_solids
+    from polyhull.person import make_person, sample_points_inside
+
+    bare = replace(small_cell, robot=None)
+    sim = Simulator(bare)
+    monitor = Monitor(bare, references=sim.reference())
+    person = make_person(position=(0.8, 0.8))
+    for k in range(3):
+        frames = sim.render(None, targets=[person], seed=k, stamp=0.1 * k)
+        v = monitor.step(frames, None, stamp=0.1 * k)
+        assert v.faults == () and v.speed_scale == 1.0
+        assert v.min_distance == np.inf and v.closest_link is None and v.closest_points is None
+        assert v.counts["kept_pieces"] > 0  # the person is seen
+    assert v.robot_occlusion.is_empty()
+    points = sample_points_inside(person, 2000, seed=1)
+    in_r3 = manifold_contains(monitor.static.region, points) | points_in_hexahedra(points, v._geometry.kept)
+    excused = in_solids(bare, points) | ~exactly_possibly_occupied(monitor, frames, points)
+    assert in_r3[~excused].all() and (~excused).sum() > 1000
