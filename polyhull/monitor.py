@@ -307,8 +307,20 @@ class Monitor:
         # Pieces grow by at most padding * sqrt(3) (cube corners): that is the margin added
         # to the protective separation distance.
         self._margin = self._padding * math.sqrt(3.0)
+        self._prepare_images()
+        self._prepare_robot(robot)
+        self.reset()
+        if warm_up:
+            self._warm_up(references)
+
+    def _prepare_images(self) -> None:
+        """What the image stages and the memory read every cycle, built once: the static
+        pixel classes, the edge wedges and sheet tiles, the static free depth and its
+        pyramids, the shadow memories, the pools of per-cycle buffers and the threads."""
+        cell = self.cell
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
+
         def shadow_memory(front: bool) -> ShadowMemory:
             return ShadowMemory(
                 cell.cameras, [c.free_static for c in self.static.cameras], self._stack, cell.reconstruction.tile,
@@ -320,9 +332,6 @@ class Monitor:
         # the robot occlusion in front of the robot: a colour camera's whole ray, a depth
         # camera's tolerance band before the padded front
         self._shadow_front = shadow_memory(True)
-        # a cycle's images (held by its verdict and last_images) and its rasters (held by
-        # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
-        # one pair per camera, are left reset after each use
         self._static_classes = [
             prepare_static(s.lower, s.upper, s.free_static, c.near, s.edge)
             for c, s in zip(cell.cameras, self.static.cameras, strict=True)
@@ -339,6 +348,9 @@ class Monitor:
         for i, s in enumerate(self.static.cameras):
             self._free_static.image(i)[:] = s.free_static
         self._static_pyramids = PyramidStack.build(self._free_static, np.ones(len(cell.cameras), dtype=bool))
+        # a cycle's images (held by its verdict and last_images) and its rasters (held by
+        # last_images only), reused once nobody holds them; the rasteriser's depth buffers,
+        # one pair per camera, are left reset after each use
         self._image_pool: Pool[CycleBuffers] = Pool(
             lambda: CycleBuffers(self._stack, self._static_classes, [s.free_static for s in self.static.cameras])
         )
@@ -356,6 +368,11 @@ class Monitor:
         # per-camera work (robot raster, pixel classes) runs on two threads: the compiled
         # kernels release the GIL
         self._pool = ThreadPoolExecutor(max_workers=min(2, max(1, len(cell.cameras))), thread_name_prefix="polyhull")
+
+    def _prepare_robot(self, robot: Robot | None) -> None:
+        """The padded robot's pieces (:mod:`polyhull.engine.robot_pose`), the distance model
+        of its moving links and the static region's distance (python-fcl), built once."""
+        cell = self.cell
         if robot is not None:
             self._robot_pieces: RobotPieces | None = RobotPieces(robot, self._padding, cell.plausibility.shell_thickness)
             self._padded: PaddedPieces | None = self._robot_pieces.padded
@@ -371,9 +388,6 @@ class Monitor:
             self._padded = None
             self._static_distance = None
             self._distance_model = None
-        self.reset()
-        if warm_up:
-            self._warm_up(references)
 
     def _warm_up(self, references: Mapping[str, np.ndarray]) -> None:
         """Two cycles on synthetic frames, then :meth:`reset`: compiled kernels loaded,
