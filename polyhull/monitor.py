@@ -964,8 +964,8 @@ class Monitor:
         self._prev_distance = distance
         names = [c.name for c in self.cell.cameras]
         self.last_images = CycleImages(
-            free={n: f for n, f in zip(names, images.free, strict=True) if f is not None},
-            end={n: e for n, e in zip(names, images.end, strict=True) if e is not None},
+            free=dict(zip(names, images.free, strict=True)),
+            end=dict(zip(names, images.end, strict=True)),
             raster=images.rasters,
             _lease=(images.lease, images.raster_lease),
         )
