@@ -33,6 +33,20 @@ def test_text_summarises_removals_per_rule(capsys: pytest.CaptureFixture[str]) -
     assert all(" part" in line and "m^3" in line for line in lines)
 
 
+def test_the_distance_line_names_the_link_or_why_there_is_none(capsys: pytest.CaptureFixture[str]) -> None:
+    """A measured cycle names its closest link; a stop verdict (here the paper cell's
+    frames, 640 x 480, for the small cell's 320 x 240 cameras) says it measured nothing."""
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("min distance"))
+    assert " m to " in line and "None" not in line, line
+    wrong = ROOT / "fixtures" / "frames" / "paper_walk_000.npz"
+    assert cli.main(["run", str(CELL), "--frames", str(wrong)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    line = next(x for x in out if x.startswith("min distance"))
+    assert line.endswith("(a stop: the cycle measured nothing, see the faults)"), line
+    assert any(x.startswith("FAULT") and "frame shape" in x for x in out)
+
+
 def test_broken_frames_files_are_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     import numpy as np
 

@@ -190,7 +190,7 @@ def _run(args: argparse.Namespace) -> int:
         d = "inf" if record["min_distance"] is None else f"{record['min_distance']:.3f}"
         true = "-" if record["true_distance"] is None else f"{record['true_distance']:.3f}"
         faults = "; ".join(verdict.faults) if verdict.faults else "-"
-        print(f"{t:6.2f} {d:>12} {true:>8} {str(verdict.closest_link):>13} {verdict.speed_scale:6.2f} {ms:10.0f}  {faults}", flush=True)
+        print(f"{t:6.2f} {d:>12} {true:>8} {verdict.closest_link or '-':>13} {verdict.speed_scale:6.2f} {ms:10.0f}  {faults}", flush=True)
         if recorder is not None and (scene_t is None or t >= scene_t + args.scene_dt - 1e-9):
             recorder.add_cycle(t, q, people, verdict)
             scene_t = t

@@ -116,7 +116,7 @@ def _run(args: argparse.Namespace) -> int:
             dist = "none" if rec["min_distance"] is None else f"{rec['min_distance']:.3f} m"
             faults = "; ".join(rec["faults"]) or "-"
             print(
-                f"{path.name:<24} stamp {rec['stamp']:8.3f} s  distance {dist:>9} ({rec['closest_link']})  "
+                f"{path.name:<24} stamp {rec['stamp']:8.3f} s  distance {dist:>9} ({rec['closest_link'] or '-'})  "
                 f"speed {rec['speed_scale']:.2f}  cycle {rec['cycle_ms'] or math.nan:7.1f} ms  faults {faults}",
                 flush=True,
             )
@@ -143,7 +143,13 @@ def _run(args: argparse.Namespace) -> int:
         print(f"hull C          {vols['volume_hull']:.3f} m^3")
         print(f"occlusion M     {vols['volume_robot_occlusion']:.3f} m^3")
         print(f"region R2 / R3  {vols['volume_r2']:.3f} / {vols['volume_region']:.3f} m^3")
-        print(f"min distance    {'none' if not math.isfinite(d) else f'{d:.3f} m'} ({verdict.closest_link})")
+        if verdict.closest_link is not None:
+            where = f" to {verdict.closest_link}"
+        elif verdict.faults and d == 0.0:
+            where = " (a stop: the cycle measured nothing, see the faults)"
+        else:
+            where = ""
+        print(f"min distance    {'none' if not math.isfinite(d) else f'{d:.3f} m'}{where}")
         print(f"speed scale     {verdict.speed_scale:.3f}")
         # one line per rule: how many parts it removed and their volume
         by_rule: dict[str, list[float]] = defaultdict(list)
