@@ -747,7 +747,7 @@ def test_demo_shares_the_static_region_and_follows_the_timeline(cell: Cell, tmp_
     assert timeline is not None
     np.testing.assert_allclose(timeline["times"], [0.0, 0.5, 1.0, 1.5, 2.0, 2.5])
     assert timeline["duration"] == pytest.approx(3.0)
-    assert timeline["texts"][2].startswith("t = 1.0 s") and timeline["texts"][2].endswith("speed 40 %")
+    assert timeline["texts"][2].startswith("t = 1.0 s: ") and timeline["texts"][2].endswith("speed 40 %")
     assert timeline["colors"][0] == f"#{pv.speed_color_hex(0.0):06x}"
     html = recorder.write_html(tmp_path / "demo.html").read_text(encoding="utf-8")
     assert '"texts": [' in html and "viewer.animator" in html and "viewer.gui.open()" in html

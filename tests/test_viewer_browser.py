@@ -258,7 +258,7 @@ def test_demo_page_autoplays_with_its_controls_and_status_line(tmp_path: Path) -
     assert_not_blank(image)
     assert "Close Controls" in dom[0]  # meshcat's controls (with the animation's) are open
     match = re.search(r'<span id="polyhull-text">([^<]*)</span>', dom[0])
-    assert match is not None and re.fullmatch(r"t = \d\.\d s   1\.06 m to link_3, speed \d+ %", match.group(1))
+    assert match is not None and re.fullmatch(r"t = \d\.\d s: 1\.06 m to link_3, speed \d+ %", match.group(1))
     corners = np.array([PERSON_LO, PERSON_HI])
     uv = project(cell, corners, image.shape[:2])
     lo, hi = uv.min(axis=0), uv.max(axis=0)

@@ -275,7 +275,7 @@ class DemoRecorder:
         vis.set_animation(animation, play=True, repetitions=int(repetitions))
         vis.set_timeline(
             frames / self.fps,
-            [f"t = {c.t:.1f} s   {distance_text(c)}" for c in kept],
+            [f"t = {c.t:.1f} s: {distance_text(c)}" for c in kept],
             [speed_color_hex(c.speed_scale) for c in kept],
             end / self.fps,
         )
