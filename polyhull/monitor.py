@@ -686,6 +686,7 @@ class Monitor:
             occlusion=lambda: self._occlusion(padded_world),
             full_pieces=lambda: self._full_pieces(free_stack, carving),
             lease=images.lease,
+            k_of_n=self.cell.reconstruction.k_of_n,
         )
         return Verdict(
             stamp=t,

@@ -43,6 +43,19 @@ def hexahedra_manifold(vertices: ArrayF64) -> m3.Manifold:
     return check_manifold(m3.Manifold.batch_boolean(hulls, m3.OpType.Add), "dynamic region")
 
 
+_HEXAHEDRON_TRIANGLES = np.array(
+    [
+        [0, 1, 2], [0, 2, 3],  # the near face (vertices 0-3)
+        [4, 6, 5], [4, 7, 6],  # the far face (4-7, in the same order)
+        [0, 5, 1], [0, 4, 5], [1, 6, 2], [1, 5, 6],  # the sides: vertex i and i + 4
+        [2, 7, 3], [2, 6, 7], [3, 4, 0], [3, 7, 4],
+    ],
+    dtype=np.int64,
+)
+"""The 12 triangles of a piece's hexahedron (:class:`polyhull.engine.pieces.PieceSet`'s
+vertex order)."""
+
+
 @dataclass(eq=False)
 class CycleGeometry:
     """What a verdict needs to build its manifolds when they are read."""
@@ -58,6 +71,7 @@ class CycleGeometry:
     occlusion: Callable[[], m3.Manifold]
     full_pieces: Callable[[], ArrayF64]
     lease: object = None  # holds the cycle's images (see :class:`polyhull.engine.buffers.Pool`)
+    k_of_n: int = 1  # the cell's k-of-n rule (C_static's test)
     cache: dict[str, m3.Manifold] = field(default_factory=dict)
 
     @functools.cached_property
@@ -75,15 +89,44 @@ class CycleGeometry:
             self.cache[name] = self._build(name)
         return self.cache[name]
 
+    @functools.cached_property
+    def merged_pieces(self) -> ArrayF64:
+        """(M, 8, 3) the kept pieces with siblings merged back (the same union from about a
+        third as many pieces)."""
+        return piece_vertices(merge_adjacent(self.kept_boxes), self.stack)
+
+    def drawn_pieces(self) -> ArrayF64:
+        """(D, 8, 3) the merged kept pieces that add to the static region's drawing: not
+        those whose corners (moved 2 % toward the piece's centre, off the surfaces pieces
+        end on) all lie in C_static."""
+        pieces = self.merged_pieces
+        if len(pieces) == 0:
+            return pieces
+        centre = pieces.mean(axis=1, keepdims=True)
+        corners = centre + 0.98 * (pieces - centre)
+        inside = self.static.hull_contains(corners.reshape(-1, 3), self.k_of_n).reshape(-1, 8).all(axis=1)
+        return pieces[~inside]
+
+    def drawing(self) -> tuple[ArrayF64, np.ndarray]:
+        """Triangles of the dynamic region without its union (see
+        :meth:`Verdict.region_dynamic_drawing`)."""
+        pieces = self.drawn_pieces()
+        faces = (8 * np.arange(len(pieces))[:, None, None] + _HEXAHEDRON_TRIANGLES[None]).reshape(-1, 3)
+        sheets = (self.get("dynamic_sheets") - self.static.region).to_mesh64()  # what they add
+        props = np.asarray(sheets.vert_properties, dtype=np.float64)
+        sv = props.reshape(len(props), -1)[:, :3] if props.size else np.zeros((0, 3))
+        sf = np.asarray(sheets.tri_verts, dtype=np.int64).reshape(-1, 3)
+        return np.concatenate([pieces.reshape(-1, 3), sv]), np.concatenate([faces, sf + 8 * len(pieces)])
+
     def _build(self, name: str) -> m3.Manifold:
         s = self.static
-        if name == "region_dynamic":
+        if name == "dynamic_sheets":
             # The sheet boxes are supersets of the static sheet they stand for: as a
             # manifold, only their part in R2_static (the removed sheet) is shown.
-            # (the same union from a third as many pieces: siblings merged back)
-            pieces = hexahedra_manifold(piece_vertices(merge_adjacent(self.kept_boxes), self.stack)) ^ self.zone
-            sheets = hexahedra_manifold(self.sheet_boxes) ^ s.region_r2
-            return check_manifold(pieces + sheets, "dynamic region")
+            return hexahedra_manifold(self.sheet_boxes) ^ s.region_r2
+        if name == "region_dynamic":
+            pieces = hexahedra_manifold(self.merged_pieces) ^ self.zone
+            return check_manifold(pieces + self.get("dynamic_sheets"), "dynamic region")
         if name == "region":
             return check_manifold(s.region + self.get("region_dynamic"), "region R3")
         if name == "region_r2":
@@ -167,6 +210,21 @@ class Verdict:
     def region_dynamic(self) -> m3.Manifold:
         """This cycle's part of R3: the kept dynamic pieces and the sheets under them."""
         return self._region("region_dynamic")
+
+    def region_dynamic_drawing(self) -> tuple[ArrayF64, np.ndarray]:
+        """What this cycle adds to the static region, as triangles to draw fast: (V, 3)
+        vertices [m] and (F, 3) vertex indices. For viewers, which draw the static region
+        once: :attr:`region_dynamic` minus the static region, but without the union of the
+        pieces (thousands near the robot: seconds to tens of seconds; these triangles take
+        milliseconds). The kept pieces' hexahedra as they are (merged siblings; their
+        interiors may overlap, so some faces lie inside), less those lying wholly in the
+        static hull C_static, then the sheets' exact part outside the static region. A
+        drawing, not a set: a piece partly in the static region is drawn whole, and one
+        wholly in C_static where the static rules removed a noise sheet is not drawn (the
+        sheet kept under it is). Empty without geometry (a stop verdict)."""
+        if self._geometry is None:
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        return self._geometry.drawing()
 
     @property
     def region_r1(self) -> m3.Manifold:

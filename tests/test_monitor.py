@@ -307,3 +307,41 @@ def test_a_cell_without_a_robot(small_cell) -> None:  # noqa: ANN001
     in_r3 = manifold_contains(monitor.static.region, points) | points_in_hexahedra(points, v._geometry.kept)
     excused = in_solids(bare, points) | ~exactly_possibly_occupied(monitor, frames, points)
     assert in_r3[~excused].all() and (~excused).sum() > 1000
+
+
+def test_the_dynamic_region_drawing_is_what_the_cycle_adds(small_cell, small_sim: Simulator) -> None:  # noqa: ANN001
+    """``region_dynamic_drawing`` (the viewer's fast path): the hexahedra of the kept pieces
+    not wholly in C_static, then the surface of the sheets' part outside the static region;
+    every piece of ``region_dynamic`` that is dropped lies in C_static, and together the
+    pieces and the sheets are ``region_dynamic``; a stop verdict draws nothing."""
+    from polyhull.person import make_person
+    from polyhull.verdict import hexahedra_manifold
+
+    monitor = Monitor(small_cell, references=small_sim.reference())
+    person = make_person(position=(0.7, 0.9))
+    q = _q(monitor)
+    v = monitor.step(small_sim.render(q, targets=[person], seed=3, stamp=0.0), q, stamp=0.0)
+    g = v._geometry
+    assert g is not None
+    vertices, faces = v.region_dynamic_drawing()
+    assert faces.shape[1] == 3 and faces.min() >= 0 and faces.max() < len(vertices)
+    drawn, merged = g.drawn_pieces(), g.merged_pieces
+    assert 0 < len(drawn) <= len(merged)
+    np.testing.assert_array_equal(vertices[: 8 * len(drawn)], drawn.reshape(-1, 3))
+    head = faces[: 12 * len(drawn)]
+    assert np.all(head // 8 == np.repeat(np.arange(len(drawn)), 12)[:, None])  # one hexahedron each
+    # the dropped pieces lie in C_static: their centres (a convex piece's interior point) are in it
+    kept = {p.tobytes() for p in drawn}
+    dropped = np.array([p for p in merged if p.tobytes() not in kept]).reshape(-1, 8, 3)
+    assert monitor.static.hull_contains(dropped.mean(axis=1), small_cell.reconstruction.k_of_n).all()
+    # the rest is the surface of the sheets outside the static region: its enclosed volume
+    # (divergence theorem) is that manifold's
+    tri = vertices[faces[12 * len(drawn) :]]
+    enclosed = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0
+    sheets = g.get("dynamic_sheets")
+    assert enclosed == pytest.approx((sheets - monitor.static.region).volume(), rel=1e-9, abs=1e-12)
+    # and the pieces (all of them) with the sheets are region_dynamic
+    united = (hexahedra_manifold(merged) ^ monitor._zone) + sheets
+    assert united.volume() == pytest.approx(v.region_dynamic.volume(), rel=1e-9)
+    stop = monitor.step({}, q, stamp=0.1)
+    assert stop.faults and [a.shape[0] for a in stop.region_dynamic_drawing()] == [0, 0]

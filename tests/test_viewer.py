@@ -819,3 +819,35 @@ def test_core_never_imports_the_viewer() -> None:
 def test_public_names_resolve() -> None:
     for name in pv.__all__:
         assert getattr(pv, name) is not None, name
+
+
+@dataclass(frozen=True)
+class _DrawingVerdict(FakeVerdict):
+    """A verdict with the fast drawing of its dynamic region (the monitor's Verdict has it)."""
+
+    drawing: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+
+    def region_dynamic_drawing(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.drawing
+
+
+def test_demo_draws_the_verdicts_fast_drawing_when_it_has_one(cell: Cell) -> None:
+    """The recorder draws ``region_dynamic_drawing()`` as given (two overlapping boxes, not
+    united, not cut by the static region), and never builds ``region_dynamic``."""
+    boxes = [_box([1.0, 1.0, 0.0], [0.4, 0.4, 1.0]), _box([1.2, 1.2, 0.5], [0.4, 0.4, 1.0])]
+    arrays = [(np.asarray(b.to_mesh().vert_properties)[:, :3], np.asarray(b.to_mesh().tri_verts)) for b in boxes]
+    vertices = np.concatenate([a[0] for a in arrays])
+    faces = np.concatenate([arrays[0][1], arrays[1][1] + len(arrays[0][0])])
+    static = _box([1.0, 1.0, 0.0], [2.0, 2.0, 0.3])  # holds part of both boxes
+    recorder = pv.DemoRecorder(cell, robot=FakeRobot(), static_region=static)
+    base = _verdict(region=boxes[0] + boxes[1] + static)
+    fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
+    fields["region_dynamic"] = None  # were it read, the whole region would be drawn
+    for k in range(2):
+        recorder.add_cycle(0.5 * k, [0.1 * k, 0.0], [], _DrawingVerdict(**fields, drawing=(vertices, faces)))
+    vis = recorder.build()
+    geometry = _json(vis, "/polyhull/anim/region/1")["geometries"][0]
+    drawn = _decode(geometry["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3)
+    drawn_faces = _decode(geometry["data"]["index"]["array"], np.uint32).reshape(-1, 3)
+    np.testing.assert_allclose(drawn, vertices.astype(np.float32))
+    np.testing.assert_array_equal(drawn_faces, faces)

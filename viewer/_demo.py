@@ -180,9 +180,12 @@ class DemoRecorder:
             t: Time of the cycle [s]; strictly increasing from cycle to cycle.
             q: Joint positions [rad] of the robot in this cycle.
             person_meshes: The people (or other targets) in the world frame.
-            verdict: The monitor's verdict of this cycle; its ``region_dynamic`` minus the
-                static region is drawn (its whole ``region`` when it has no
-                ``region_dynamic``). Only that region is read.
+            verdict: The monitor's verdict of this cycle; what it adds to the static
+                region is drawn: ``region_dynamic_drawing()`` when it has one (the
+                monitor's :class:`polyhull.verdict.Verdict`: its kept pieces as they are,
+                not united, in milliseconds where the union of thousands of pieces near the
+                robot takes seconds), else ``region_dynamic`` minus ``static_region``, else
+                its whole ``region``. Only that region is read.
         """
         t = float(t)
         if not np.isfinite(t):
@@ -206,19 +209,28 @@ class DemoRecorder:
         )
         points = verdict.closest_points
         closest = None if points is None else np.array(points, dtype=np.float64).reshape(2, 3)
-        dynamic = getattr(verdict, "region_dynamic", None)
-        if dynamic is None:
-            region = verdict.region
-        elif self.static_region is not None:
-            region = dynamic - self.static_region  # what this cycle adds to the static region
+        drawing = getattr(verdict, "region_dynamic_drawing", None)
+        if callable(drawing):
+            v, f = drawing()
+            region_arrays = (
+                np.ascontiguousarray(np.asarray(v, dtype=np.float32).reshape(-1, 3)),
+                np.ascontiguousarray(np.asarray(f, dtype=np.uint32).reshape(-1, 3)),
+            )
         else:
-            region = dynamic
+            dynamic = getattr(verdict, "region_dynamic", None)
+            if dynamic is None:
+                region = verdict.region
+            elif self.static_region is not None:
+                region = dynamic - self.static_region  # what this cycle adds to the static region
+            else:
+                region = dynamic
+            region_arrays = manifold_arrays(region)
         self._cycles.append(
             _Cycle(
                 t=t,
                 q=q_arr,
                 person=person,
-                region=manifold_arrays(region),
+                region=region_arrays,
                 closest_points=closest,
                 min_distance=float(verdict.min_distance),
                 speed_scale=float(verdict.speed_scale),
