@@ -152,6 +152,20 @@ def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     return padded_robot_occlusion(monitor, points)
 
 
+def in_declared_occlusion(monitor: Monitor, frames: dict, points: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
+    """(P,) :func:`in_robot_occlusion`, or in M with the engine's declared tolerances (the
+    bench's excuses, :func:`polyhull.oracles.tightness_and_misses`): the empty cell freeing
+    up to each pixel's own static band, and a static edge's flying readings of ``frames``
+    taken for the static scene (:func:`polyhull.oracles.flying_edge_free`)."""
+    from polyhull.oracles import padded_robot_occlusion
+
+    return (
+        in_robot_occlusion(monitor, points)
+        | padded_robot_occlusion(monitor, points, band=True)
+        | padded_robot_occlusion(monitor, points, band=True, frames=frames)
+    )
+
+
 def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie, in every camera whose robot raster covers their pixel,
     between the padded robot's front and back depths there (the padded robot itself, or a

@@ -20,6 +20,7 @@ from polyhull.oracles import (
     exact_free,
     exact_hull,
     exact_hulls,
+    flying_edge_free,
     padded_robot_occlusion,
     padded_robot_shadow,
 )
@@ -136,3 +137,32 @@ def test_exact_hull_gap_grid_matches_the_point_oracle(small_monitor: Monitor, ga
     # the robot's occlusion removes something: points hidden by the robot from every camera
     _, _, kept_robot = oracle.kept(g["frames"], g["robot_depth"], g["person"])
     assert not np.any(kept_robot & ~kept) and np.any(kept & ~kept_robot)
+
+
+def test_flying_edge_free_marks_a_lone_mixed_reading_at_a_static_edge(small_monitor: Monitor) -> None:
+    """The flying-pixel excuse: a reading between an edge's two surfaces, in front of its own
+    band, alone, frees only to its own free depth; a reading in its own band, or one with a
+    changed reading at a non-edge pixel within 2 px, or a pixel off the edges, is not one."""
+    s = next(c for c in small_monitor.static.cameras if c.camera.kind == "depth")
+    B = np.asarray(s.reference, dtype=np.float64)
+    edge = np.asarray(s.edge, dtype=bool)
+    lower, own = np.asarray(s.lower, dtype=np.float64), np.asarray(s.own_free, dtype=np.float64)
+    D = np.where(np.isfinite(B), B, 0.0).astype(np.float32)
+    assert np.isinf(flying_edge_free(s, D)).all()  # the empty cell's own depth: nothing
+    H, W = D.shape
+    # an edge pixel whose widened band reaches well in front of its own (the nearer surface)
+    v, u = np.argwhere(edge & (B - lower > 0.3) & np.isfinite(B))[len(np.argwhere(edge)) // 3]
+    assert 4 <= v < H - 4 and 4 <= u < W - 4
+    D[v, u] = lower[v, u] + 0.05  # a mixed reading, inside the widened band
+    f = flying_edge_free(s, D)
+    assert np.isfinite(f[v, u]) and f[v, u] < own[v, u]
+    assert np.isinf(np.delete(f.ravel(), v * W + u)).all()
+    assert f[v, u] == pytest.approx(exact_free(s, D)[v, u])
+    # something else seen next to it: a non-edge pixel within 2 px reads far in front
+    near = [(v + dv, u + du) for dv in range(-2, 3) for du in range(-2, 3) if not edge[v + dv, u + du]]
+    assert near
+    D2 = D.copy()
+    D2[near[0]] = 0.5 * float(B[near[0]])
+    assert np.isinf(flying_edge_free(s, D2)[v, u])
+    D[v, u] = B[v, u]  # its own background: not a flying reading
+    assert np.isinf(flying_edge_free(s, D)[v, u])
