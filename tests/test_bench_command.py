@@ -114,7 +114,7 @@ def test_camera_ring_and_resolution() -> None:
         assert c.center[2] == pytest.approx(3.3)
         assert np.hypot(c.center[0] - 3.0, c.center[1] - 3.0) == pytest.approx(2.9)
         axis = c.T_world_camera[:3, 2]
-        to_target = np.array([3.0, 3.0, 1.0]) - c.center
+        to_target = np.array([3.0, 3.0, 1.6]) - c.center
         assert axis @ to_target == pytest.approx(np.linalg.norm(to_target))  # looks at the target
     k = rescale_camera(cell.cameras[0], 320, 240).intrinsics
     assert (k.width, k.height, k.fx, k.fy, k.cx, k.cy) == (320, 240, 262.5, 262.5, 159.5, 119.5)
