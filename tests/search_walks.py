@@ -1,4 +1,5 @@
-"""A randomised search for misses over whole walks in the default cell (not run by pytest).
+"""A randomised search for misses over whole walks in a cell (the default one unless
+``--cell``; its robot's base at the zone's centre; not run by pytest).
 
 Each walk (one seed): a person walks a random track across the floor at 0.8 to 1.8 m/s and
 then stands or reaches, while the robot moves between two random joint positions; 12 cycles
@@ -14,6 +15,7 @@ Every cycle that does not stop for a contact is checked by the same oracles as t
   depth (a reading between two pixels' rays).
 
     python tests/search_walks.py --seeds 3000 --walks 60
+    python tests/search_walks.py --cell fixtures/cells/color8_cell.toml --walks 20
 
 prints one line per finding and a summary; exits 1 on a miss or a lost body point. About
 20 s a walk on a 2-core machine.
@@ -48,10 +50,13 @@ def walk(monitor: Monitor, rng: np.random.Generator) -> tuple[PersonTrack, np.nd
     cell, robot = monitor.cell, monitor.robot
     assert robot is not None
 
+    lo, hi = np.asarray(cell.zone.min)[:2] + 0.3, np.asarray(cell.zone.max)[:2] - 0.3
+    base = np.asarray(cell.robot.base)[:2] if cell.robot is not None else 0.5 * (lo + hi)
+
     def spot() -> tuple[float, float]:
         while True:  # on the floor, off the obstacles and the robot's base
-            x, y = rng.uniform(0.3, 5.7, 2)
-            if np.hypot(x - 3.0, y - 3.0) > 0.6 and not in_solids(cell, np.array([[x, y, 0.3], [x, y, 1.0]])).any():
+            x, y = rng.uniform(lo, hi)
+            if np.hypot(x - base[0], y - base[1]) > 0.6 and not in_solids(cell, np.array([[x, y, 0.3], [x, y, 1.0]])).any():
                 return float(x), float(y)
 
     start, end = spot(), spot()
@@ -106,10 +111,11 @@ def check_walk(monitor: Monitor, sim: Simulator, seed: int) -> list[dict[str, ob
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--cell", type=Path, default=None, help="cell file (default: the embedded paper cell)")
     parser.add_argument("--seeds", type=int, default=3000, help="first walk's seed (default 3000)")
     parser.add_argument("--walks", type=int, default=10, help="walks, seeds in a row (default 10)")
     args = parser.parse_args()
-    cell = load_cell(default_cell_path())
+    cell = load_cell(args.cell or default_cell_path())
     sim = Simulator(cell)
     monitor = Monitor(cell, references=sim.reference())
     cycles = stops = excused = misses = lost = 0
