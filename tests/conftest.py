@@ -121,11 +121,12 @@ def manifold_contains(
 
 
 def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
-    """The exact per-pixel oracle: a point is possibly occupied unless some camera sees it in
-    front of the SPEC's free depth ``min(D, B) - tau(D)`` of the pixel it projects to."""
+    """The exact per-pixel oracle: a point is possibly occupied unless k cameras (the cell's
+    k-of-n rule) see it in front of the SPEC's free depth ``min(D, B) - tau(D)`` of the
+    pixel it projects to."""
     from polyhull.regions import free_depth
 
-    occupied = np.ones(len(points), dtype=bool)
+    freed = np.zeros(len(points), dtype=np.int64)
     for s in monitor.statics:
         cam = s.camera
         f = free_depth(cam, np.asarray(frames[cam.name].depth, dtype=np.float64), s.reference)
@@ -136,8 +137,8 @@ def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray
             in_view &= (uv[:, 1] >= -0.5) & (uv[:, 1] < H - 0.5)
         ui = np.clip(np.floor(np.nan_to_num(uv[:, 0]) + 0.5).astype(int), 0, W - 1)
         vi = np.clip(np.floor(np.nan_to_num(uv[:, 1]) + 0.5).astype(int), 0, H - 1)
-        occupied &= ~(in_view & (z <= f[vi, ui]))
-    return occupied
+        freed += in_view & (z <= f[vi, ui])
+    return freed < monitor.cell.reconstruction.k_of_n
 
 
 def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:

@@ -90,7 +90,8 @@ def check_walk(monitor: Monitor, sim: Simulator, seed: int) -> list[dict[str, ob
         b = person.bounds
         points = np.concatenate([rng.uniform(lo, hi, size=(3000, 3)), rng.uniform(b[0] - 0.5, b[1] + 0.5, size=(3000, 3))])
         points = points[np.all((points >= lo) & (points <= hi), axis=1)]
-        in_r2 = monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
+        k = cell.reconstruction.k_of_n
+        in_r2 = monitor.static.hull_contains(points, k) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
         out = points[exactly_possibly_occupied(monitor, frames, points) & ~in_r2 & ~in_solids(cell, points)]
         out = out[~in_robot_occlusion(monitor, out)]
         declared = padded_robot_occlusion(monitor, out, band=True) | padded_robot_occlusion(

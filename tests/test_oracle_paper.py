@@ -150,7 +150,7 @@ def _assert_no_misses(monitor: Monitor, frames: dict, v: object, person: object,
     points = points[np.all((points >= lo) & (points <= hi), axis=1)]
     occupied = exactly_possibly_occupied(monitor, frames, points)
     assert occupied.sum() > 100  # the oracle tests something
-    in_r2 = monitor.static.hull_contains(points) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[attr-defined]
+    in_r2 = monitor.static.hull_contains(points, cell.reconstruction.k_of_n) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[attr-defined]
     out = points[occupied & ~in_r2 & ~in_solids(cell, points)]
     misses = out[~in_declared_occlusion(monitor, frames, out)]
     assert len(misses) == 0, f"cycle {cycle}: {len(misses)} exactly occupied points outside R2: {misses[:5]}"
