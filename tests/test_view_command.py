@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -32,6 +33,8 @@ SMALL_CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
 
 # Runs the command the way `polyhull view ...` does, without needing every other command.
 RUNNER = (
+    "import faulthandler, signal\n"
+    "faulthandler.register(signal.SIGUSR1)  # a hung run's threads, for the test's message\n"
     "import argparse, sys\n"
     "from polyhull.commands import view\n"
     "p = argparse.ArgumentParser(prog='polyhull')\n"
@@ -257,7 +260,16 @@ def test_signal_stops_serving_and_the_server(stop_signal: int) -> None:
         status, body = _get(url)
         assert status == 200 and "MeshCat" in body
         proc.send_signal(stop_signal)
-        assert proc.wait(timeout=30) == 0
+        try:
+            code = proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:  # say where it hangs: every thread's stack
+            proc.send_signal(signal.SIGUSR1)
+            time.sleep(2.0)
+            proc.kill()
+            _, err = proc.communicate(timeout=10)
+            rest = "".join(lines.get() for _ in range(lines.qsize()))
+            pytest.fail(f"still running 30 s after the signal; stdout after the URL: {rest!r}; stderr:\n{err}")
+        assert code == 0
         assert "server stopped" in lines.get(timeout=10)
         assert _refused(url)
     finally:
