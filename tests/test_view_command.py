@@ -276,3 +276,25 @@ def test_signal_stops_serving_and_the_server(stop_signal: int) -> None:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
+
+
+def test_serving_stops_when_the_signal_reaches_another_thread() -> None:
+    """The kernel may deliver Ctrl-C to any thread that does not block it (the ZeroMQ
+    context's I/O threads): Python's handler then waits for the main thread, which must
+    not be inside one long sleep. Here the signal is sent to a helper thread."""
+    code = (
+        "import signal, threading, time\n"
+        "from polyhull.commands.view import _serve\n"
+        "def poke():\n"
+        "    time.sleep(0.5)\n"
+        "    signal.pthread_kill(threading.get_ident(), signal.SIGINT)\n"
+        "threading.Thread(target=poke).start()\n"
+        "t = time.monotonic()\n"
+        "_serve(None)\n"
+        "print(f'stopped after {time.monotonic() - t:.1f} s')\n"
+    )
+    try:
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=30)
+    except subprocess.TimeoutExpired:
+        pytest.fail("still serving 30 s after Ctrl-C reached a thread other than the main one")
+    assert proc.returncode == 0 and "stopped after" in proc.stdout, proc.stderr
