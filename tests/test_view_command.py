@@ -32,8 +32,14 @@ PAPER_CELL = ROOT / "fixtures" / "cells" / "paper_cell.toml"
 SMALL_CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
 
 # Runs the command the way `polyhull view ...` does, without needing every other command.
+# Ctrl-C as a terminal delivers it: a process started in the background by a shell without
+# job control (as CI may start the suite) inherits SIGINT ignored, and Python then installs
+# no KeyboardInterrupt handler; the runner installs it, as an interactive start would have.
+SIGINT_AS_IN_A_TERMINAL = "import signal\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n"
+
 RUNNER = (
-    "import faulthandler, signal\n"
+    SIGINT_AS_IN_A_TERMINAL
+    + "import faulthandler\n"
     "faulthandler.register(signal.SIGUSR1)  # a hung run's threads, for the test's message\n"
     "import argparse, sys\n"
     "from polyhull.commands import view\n"
@@ -279,11 +285,11 @@ def test_signal_stops_serving_and_the_server(stop_signal: int) -> None:
 
 
 def test_serving_stops_when_the_signal_reaches_another_thread() -> None:
-    """The kernel may deliver Ctrl-C to any thread that does not block it (the ZeroMQ
-    context's I/O threads): Python's handler then waits for the main thread, which must
-    not be inside one long sleep. Here the signal is sent to a helper thread."""
-    code = (
-        "import signal, threading, time\n"
+    """The kernel may deliver Ctrl-C to any thread that does not block it (macOS does; Linux
+    prefers the main thread), here a helper thread: Python's handler then waits for the main
+    thread, which must not be inside one long sleep."""
+    code = SIGINT_AS_IN_A_TERMINAL + (
+        "import threading, time\n"
         "from polyhull.commands.view import _serve\n"
         "def poke():\n"
         "    time.sleep(0.5)\n"

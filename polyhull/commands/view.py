@@ -158,11 +158,14 @@ def _serve(seconds: float | None) -> None:
     The caller handles SIGTERM like Ctrl-C so that ``kill`` also stops the meshcat server,
     which runs in its own session and would otherwise outlive this process.
 
-    It sleeps in short slices: the kernel may deliver the signal to one of the ZeroMQ
-    context's I/O threads, which sets Python's flag without interrupting the main thread's
-    sleep, and the handler (KeyboardInterrupt) runs only when the main thread next runs
-    Python code. One long sleep then ignored Ctrl-C for up to an hour (seen in about one
-    run of the signal test in 30 on a loaded machine).
+    It sleeps in short slices: the kernel may deliver the signal to another thread that does
+    not block it (one of the ZeroMQ context's I/O threads; macOS does, Linux prefers the main
+    thread), which sets Python's flag without interrupting the main thread's sleep, and the
+    handler (KeyboardInterrupt) runs only when the main thread next runs Python code: after
+    up to an hour with one long sleep.
+
+    A process started with SIGINT ignored (in the background by a shell without job
+    control) keeps ignoring Ctrl-C, as POSIX asks; SIGTERM still stops it.
     """
     end = math.inf if seconds is None else time.monotonic() + seconds
     try:
