@@ -193,16 +193,17 @@ def padded_robot_occlusion(
     once the robot is in the cell (the detection capability's object thinner than the
     sheet).
 
-    ``frames``: the cycle's frames; in both cells a static edge's flying readings
-    (:func:`flying_edge_free`) free only up to their own free depth, as the static scene's
-    (the engine's declared flying-pixel tolerance: a sliver behind an edge reading that
-    only cameras the robot now hides from saw free)."""
+    ``frames``: the cycle's frames (a camera without one has no flying readings); in both
+    cells a static edge's flying readings (:func:`flying_edge_free`) free only up to their
+    own free depth, as the static scene's (the engine's declared flying-pixel tolerance: a
+    sliver behind an edge reading that only cameras the robot now hides from saw free)."""
     k = monitor.cell.reconstruction.k_of_n
     base = []
     for s in monitor.static.cameras:
         f = np.asarray(s.own_free, dtype=np.float64) if band else exact_free(s, s.reference)
-        if frames is not None:
-            f = np.minimum(f, flying_edge_free(s, frames[s.camera.name].depth))
+        frame = None if frames is None else frames.get(s.camera.name)
+        if frame is not None:
+            f = np.minimum(f, flying_edge_free(s, frame.depth))
         base.append(f)
     counts = []
     for robot in (False, True):
@@ -238,9 +239,10 @@ def tightness_and_misses(monitor: Any, frames: dict, verdict: Any, samples: int,
       :func:`padded_robot_occlusion`.
 
     Both volumes leave out the solid obstacles (nobody can be inside them). ``misses`` are
-    exact-C points outside R2 and outside the padded robot's M, by its definition or with
-    the static band (:func:`padded_robot_occlusion`; must be 0: the padding and the band
-    are the engine's declared tolerances); ``misses_band`` are those only the band
+    exact-C points outside R2 and outside the padded robot's M, by its definition, with the
+    static band, or with the band and a static edge's flying readings
+    (:func:`padded_robot_occlusion`; must be 0: the padding, the band and the flying
+    readings are the engine's declared tolerances); ``misses_band`` are those only the band
     excuses, ``misses_flying`` those only the band with a static edge's flying readings
     (:func:`flying_edge_free`) excuses; ``misses_unexcused`` counts them all without an
     excuse.
