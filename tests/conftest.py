@@ -167,6 +167,31 @@ def in_declared_occlusion(monitor: Monitor, frames: dict, points: np.ndarray) ->
     )
 
 
+def zone_and_person_points(cell: Cell, person: object, rng: np.random.Generator, n: int = 3000) -> np.ndarray:
+    """(<= 2n, 3) points for the miss oracle: n uniform in the zone, n in the person's
+    bounding box grown by 0.5 m, those outside the zone dropped."""
+    lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
+    b = person.bounds  # type: ignore[attr-defined]
+    points = np.concatenate([rng.uniform(lo, hi, size=(n, 3)), rng.uniform(b[0] - 0.5, b[1] + 0.5, size=(n, 3))])
+    return points[np.all((points >= lo) & (points <= hi), axis=1)]
+
+
+def outside_r2(monitor: Monitor, frames: dict, verdict: object, points: np.ndarray) -> tuple[int, np.ndarray]:  # type: ignore[type-arg]
+    """How many ``points`` the exact per-pixel free depth leaves possibly occupied, and those
+    of them outside the verdict's R2 (C_static with the cell's k, or a dynamic piece), the
+    solids and the padded robot's M by its definition: each a miss unless a declared
+    tolerance holds it (:func:`in_declared_occlusion`)."""
+    from polyhull.distance import points_in_hexahedra
+    from polyhull.oracles import in_solids
+
+    cell = monitor.cell
+    occupied = exactly_possibly_occupied(monitor, frames, points)
+    in_r2 = monitor.static.hull_contains(points, cell.reconstruction.k_of_n)
+    in_r2 |= points_in_hexahedra(points, verdict._geometry.pieces)  # type: ignore[attr-defined]
+    out = points[occupied & ~in_r2 & ~in_solids(cell, points)]
+    return int(occupied.sum()), out[~in_robot_occlusion(monitor, out)]
+
+
 def in_robot_span(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie, in every camera whose robot raster covers their pixel,
     between the padded robot's front and back depths there (the padded robot itself, or a

@@ -31,12 +31,19 @@ import numpy as np
 from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from conftest import exactly_possibly_occupied, in_robot_occlusion, manifold_contains  # noqa: E402
+from conftest import (  # noqa: E402
+    exactly_possibly_occupied,
+    in_declared_occlusion,
+    in_robot_occlusion,
+    manifold_contains,
+    outside_r2,
+    zone_and_person_points,
+)
 
 from polyhull.cellfile import default_cell_path, load_cell  # noqa: E402
 from polyhull.distance import points_in_hexahedra  # noqa: E402
 from polyhull.monitor import Monitor  # noqa: E402
-from polyhull.oracles import in_solids, padded_robot_occlusion  # noqa: E402
+from polyhull.oracles import in_solids  # noqa: E402
 from polyhull.person import PersonTrack, sample_points_inside  # noqa: E402
 from polyhull.simulator import SensorEffects, Simulator  # noqa: E402
 
@@ -75,7 +82,6 @@ def check_walk(monitor: Monitor, sim: Simulator, seed: int) -> list[dict[str, ob
     cell = monitor.cell
     rng = np.random.default_rng(seed)  # the walk, then the cycles' points
     track, q0, q1, effects = walk(monitor, rng)
-    lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
     findings: list[dict[str, object]] = []
     monitor.reset()
     for c in range(CYCLES):
@@ -87,16 +93,8 @@ def check_walk(monitor: Monitor, sim: Simulator, seed: int) -> list[dict[str, ob
         if v.faults:
             findings.append({"seed": seed, "cycle": c, "stop": list(v.faults)})
             continue
-        b = person.bounds
-        points = np.concatenate([rng.uniform(lo, hi, size=(3000, 3)), rng.uniform(b[0] - 0.5, b[1] + 0.5, size=(3000, 3))])
-        points = points[np.all((points >= lo) & (points <= hi), axis=1)]
-        k = cell.reconstruction.k_of_n
-        in_r2 = monitor.static.hull_contains(points, k) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[union-attr]
-        out = points[exactly_possibly_occupied(monitor, frames, points) & ~in_r2 & ~in_solids(cell, points)]
-        out = out[~in_robot_occlusion(monitor, out)]
-        declared = padded_robot_occlusion(monitor, out, band=True) | padded_robot_occlusion(
-            monitor, out, band=True, frames=frames
-        )
+        _, out = outside_r2(monitor, frames, v, zone_and_person_points(cell, person, rng))
+        declared = in_declared_occlusion(monitor, frames, out)
         body = sample_points_inside(person, 300, seed=seed + c)
         body = body[cell.zone.contains(body)]
         in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]

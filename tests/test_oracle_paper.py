@@ -24,6 +24,8 @@ from conftest import (
     in_declared_occlusion,
     in_robot_occlusion,
     manifold_contains,
+    outside_r2,
+    zone_and_person_points,
 )
 from hypothesis import HealthCheck, Phase, assume, given, settings
 from hypothesis import strategies as st
@@ -142,16 +144,9 @@ def _assert_no_misses(monitor: Monitor, frames: dict, v: object, person: object,
     exact per-pixel free depth leaves possibly occupied lies in R2 of verdict ``v``, in the
     padded robot's occlusion M (by its definition, or with the declared static band and
     flying-pixel tolerances), or in a solid."""
-    cell = monitor.cell
-    rng = np.random.default_rng(seed)
-    lo, hi = np.asarray(cell.zone.min), np.asarray(cell.zone.max)
-    b = person.bounds  # type: ignore[attr-defined]
-    points = np.concatenate([rng.uniform(lo, hi, size=(3000, 3)), rng.uniform(b[0] - 0.5, b[1] + 0.5, size=(3000, 3))])
-    points = points[np.all((points >= lo) & (points <= hi), axis=1)]
-    occupied = exactly_possibly_occupied(monitor, frames, points)
-    assert occupied.sum() > 100  # the oracle tests something
-    in_r2 = monitor.static.hull_contains(points, cell.reconstruction.k_of_n) | points_in_hexahedra(points, v._geometry.pieces)  # type: ignore[attr-defined]
-    out = points[occupied & ~in_r2 & ~in_solids(cell, points)]
+    points = zone_and_person_points(monitor.cell, person, np.random.default_rng(seed))
+    occupied, out = outside_r2(monitor, frames, v, points)
+    assert occupied > 100  # the oracle tests something
     misses = out[~in_declared_occlusion(monitor, frames, out)]
     assert len(misses) == 0, f"cycle {cycle}: {len(misses)} exactly occupied points outside R2: {misses[:5]}"
 
