@@ -20,6 +20,7 @@ from .engine.dynamic_rules import LazyMesh
 from .engine.pieces import (
     CameraStack,
     PieceSet,
+    hexahedra_triangles,
     merge_adjacent,
     piece_vertices,
     piece_volumes,
@@ -41,19 +42,6 @@ def hexahedra_manifold(vertices: ArrayF64) -> m3.Manifold:
     if not hulls:
         return m3.Manifold()
     return check_manifold(m3.Manifold.batch_boolean(hulls, m3.OpType.Add), "dynamic region")
-
-
-_HEXAHEDRON_TRIANGLES = np.array(
-    [
-        [0, 1, 2], [0, 2, 3],  # the near face (vertices 0-3)
-        [4, 6, 5], [4, 7, 6],  # the far face (4-7, in the same order)
-        [0, 5, 1], [0, 4, 5], [1, 6, 2], [1, 5, 6],  # the sides: vertex i and i + 4
-        [2, 7, 3], [2, 6, 7], [3, 4, 0], [3, 7, 4],
-    ],
-    dtype=np.int64,
-)
-"""The 12 triangles of a piece's hexahedron (:class:`polyhull.engine.pieces.PieceSet`'s
-vertex order)."""
 
 
 @dataclass(eq=False)
@@ -111,12 +99,12 @@ class CycleGeometry:
         """Triangles of the dynamic region without its union (see
         :meth:`Verdict.region_dynamic_drawing`)."""
         pieces = self.drawn_pieces()
-        faces = (8 * np.arange(len(pieces))[:, None, None] + _HEXAHEDRON_TRIANGLES[None]).reshape(-1, 3)
+        pv, faces = hexahedra_triangles(pieces)
         sheets = (self.get("dynamic_sheets") - self.static.region).to_mesh64()  # what they add
         props = np.asarray(sheets.vert_properties, dtype=np.float64)
         sv = props.reshape(len(props), -1)[:, :3] if props.size else np.zeros((0, 3))
         sf = np.asarray(sheets.tri_verts, dtype=np.int64).reshape(-1, 3)
-        return np.concatenate([pieces.reshape(-1, 3), sv]), np.concatenate([faces, sf + 8 * len(pieces)])
+        return np.concatenate([pv, sv]), np.concatenate([faces, sf + len(pv)])
 
     def _build(self, name: str) -> m3.Manifold:
         s = self.static
@@ -295,7 +283,8 @@ def pieces_removed(rule: str, pieces: PieceSet, stack: CameraStack) -> RemovedCo
     vols = piece_volumes(pieces.boxes, stack)
     centres = 0.5 * np.add(*vertex_bounds(pieces.vertices))
     centroid = (centres * vols[:, None]).sum(axis=0) / max(float(vols.sum()), 1e-12)
-    return RemovedComponent(rule, float(vols.sum()), centroid, LazyMesh(hexahedra_manifold, pieces.vertices))
+    v = pieces.vertices
+    return RemovedComponent(rule, float(vols.sum()), centroid, LazyMesh(lambda idx: hexahedra_manifold(v[idx]), np.arange(len(v)), v))
 
 
 def gaps_removed(boxes: ArrayF64, verts: ArrayF64, stack: CameraStack) -> tuple[RemovedComponent, ...]:

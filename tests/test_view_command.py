@@ -127,12 +127,13 @@ def test_html_with_frames_draws_regions(
     monitor = Monitor(cell)
     verdict = monitor.step(recorded.frames, recorded.q, stamp=recorded.stamp)
     static = monitor.static.region
-    for name, region in (
-        ("hull", verdict.hull),
-        ("robot_occlusion", verdict.robot_occlusion),
-        ("dynamic", verdict.region_dynamic),
-    ):
+    for name, region in (("hull", verdict.hull), ("robot_occlusion", verdict.robot_occlusion)):
         assert (f"/polyhull/regions/{name}" in paths) == (not region.is_empty()), name
+    # what the cycle adds is drawn from the verdict's pieces as they are (not their union)
+    _, faces = verdict.region_dynamic_drawing()
+    assert len(faces) > 0 and "/polyhull/regions/dynamic" in paths
+    drawn = [c for c in html_commands(out) if c["type"] == "set_object" and c["path"] == "/polyhull/regions/dynamic"]
+    assert len(drawn[-1]["object"]["geometries"][0]["data"]["index"]["array"].data) // 12 == len(faces)
     # The static region is drawn near the robot, and beyond (hidden), when it reaches there.
     drawn_static = {p for p in paths if p.startswith("/polyhull/regions/static/")}
     assert drawn_static and drawn_static <= {"/polyhull/regions/static/near", "/polyhull/regions/static/far"}

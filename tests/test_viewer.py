@@ -851,3 +851,82 @@ def test_demo_draws_the_verdicts_fast_drawing_when_it_has_one(cell: Cell) -> Non
     drawn_faces = _decode(geometry["data"]["index"]["array"], np.uint32).reshape(-1, 3)
     np.testing.assert_allclose(drawn, vertices.astype(np.float32))
     np.testing.assert_array_equal(drawn_faces, faces)
+
+
+class _NoUnion:
+    """A verdict whose ``region_dynamic`` (the monitor's: a union built when read) fails
+    the test when read."""
+
+    def __init__(self, verdict: Any) -> None:
+        self._verdict = verdict
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._verdict, name)
+
+    @property
+    def region_dynamic(self) -> m3.Manifold:
+        raise AssertionError("region_dynamic was built")
+
+
+def test_draw_verdict_draws_the_verdicts_fast_drawing_given_the_static_region() -> None:
+    """Given ``static_region``, ``draw_verdict`` draws ``region_dynamic_drawing()`` as given
+    (two overlapping boxes, not united) and never builds ``region_dynamic``; without
+    ``static_region`` it cannot split the region that way and uses the manifolds."""
+    boxes = [_box([1.0, 1.0, 0.0], [0.4, 0.4, 1.0]), _box([1.2, 1.2, 0.5], [0.4, 0.4, 1.0])]
+    arrays = [(np.asarray(b.to_mesh().vert_properties)[:, :3], np.asarray(b.to_mesh().tri_verts)) for b in boxes]
+    vertices = np.concatenate([a[0] for a in arrays])
+    faces = np.concatenate([arrays[0][1], arrays[1][1] + len(arrays[0][0])])
+    static = _box([3.0, 3.0, 0.0], [0.5, 0.5, 0.3])
+    base = _verdict(region=boxes[0] + boxes[1] + static)
+    fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
+    fields["region_dynamic"] = None  # None: the whole region would be drawn as dynamic
+    verdict = _DrawingVerdict(**fields, drawing=(vertices, faces))
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, _NoUnion(verdict), static_region=static)
+    geometry = _json(vis, "/polyhull/regions/dynamic")["geometries"][0]
+    drawn = _decode(geometry["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3)
+    drawn_faces = _decode(geometry["data"]["index"]["array"], np.uint32).reshape(-1, 3)
+    np.testing.assert_allclose(drawn, vertices.astype(np.float32))
+    np.testing.assert_array_equal(drawn_faces, faces)
+    # nothing to add: the path is deleted (not left from an earlier cycle)
+    pv.draw_verdict(vis, _NoUnion(_DrawingVerdict(**fields)), static_region=static)
+    assert "/polyhull/regions/dynamic" not in vis.object_paths()
+    # without the static region: the whole region, as before (region_dynamic is None)
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, verdict)
+    whole = _decode(
+        _json(vis, "/polyhull/regions/dynamic")["geometries"][0]["data"]["attributes"]["position"]["array"], np.float32
+    ).reshape(-1, 3)
+    assert whole[:, 0].max() == pytest.approx(3.5, abs=1e-6)  # the static box is part of it
+
+
+def test_removed_components_of_pieces_are_drawn_from_their_pieces() -> None:
+    """A removed component made of pieces (the monitor's) is drawn from its hexahedra as they
+    are, without building its union; one given as a manifold, from the manifold."""
+    from polyhull.engine.dynamic_rules import LazyMesh
+    from polyhull.engine.pieces import hexahedra_triangles
+    from polyhull.plausibility import RemovedComponent
+
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)
+    # a box in the pieces' vertex order: the near face (z = 0) 0-3 around, the far face 4-7
+    box = corners[[0, 2, 6, 4, 1, 3, 7, 5]]
+    pieces = np.stack([box * 0.2 + [1.0, 1.0, 0.0], box * 0.2 + [1.1, 1.1, 0.1], box * 0.2 + [3.0, 3.0, 0.0]])
+
+    def never(idx: np.ndarray) -> m3.Manifold:
+        raise AssertionError("the union was built")
+
+    lazy = RemovedComponent("too small", 0.016, np.zeros(3), LazyMesh(never, np.array([0, 1]), pieces))
+    whole = RemovedComponent("flying", 0.008, np.zeros(3), _box([4.0, 4.0, 2.0], [0.2, 0.2, 0.2]))
+    verdict = replace(_verdict(), removed=(lazy, whole))
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, verdict)
+    geometry = _json(vis, "/polyhull/regions/removed/0_too small")["geometries"][0]
+    drawn = _decode(geometry["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3)
+    want_v, want_f = hexahedra_triangles(pieces[:2])
+    np.testing.assert_allclose(drawn, want_v.astype(np.float32))
+    np.testing.assert_array_equal(_decode(geometry["data"]["index"]["array"], np.uint32).reshape(-1, 3), want_f)
+    # each hexahedron's triangles close its surface
+    tm = trimesh.Trimesh(*hexahedra_triangles(pieces[:1]), process=False)
+    assert tm.is_watertight and abs(tm.volume) == pytest.approx(0.008)
+    other = _decode(_json(vis, "/polyhull/regions/removed/1_flying")["geometries"][0]["data"]["attributes"]["position"]["array"], np.float32)
+    assert len(other) == 3 * 8  # the manifold's box: 8 vertices

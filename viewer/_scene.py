@@ -38,6 +38,7 @@ from typing import Any, Protocol
 import manifold3d as m3
 import meshcat.geometry as mg
 import numpy as np
+import numpy.typing as npt
 import trimesh
 
 from polyhull.cell import Cell
@@ -157,6 +158,24 @@ def draw_manifold(
         vis.delete()
         return False
     vis.set_object(mesh_object(vertices, faces, color, opacity))
+    return True
+
+
+def draw_triangles(
+    vis: VisualizerLike, vertices: ArrayF64, faces: npt.NDArray[np.integer[Any]], color: int, opacity: float = 1.0
+) -> bool:
+    """Draw triangles ((V, 3) vertices, (F, 3) vertex indices) at ``vis`` as a flat-shaded
+    mesh, or delete ``vis`` when there are none.
+
+    Returns:
+        True when something was drawn.
+    """
+    faces = np.asarray(faces).reshape(-1, 3)
+    if len(faces) == 0:
+        vis.delete()
+        return False
+    v = np.ascontiguousarray(np.asarray(vertices, dtype=np.float32).reshape(-1, 3))
+    vis.set_object(mesh_object(v, np.ascontiguousarray(faces, dtype=np.uint32), color, opacity))
     return True
 
 
@@ -417,11 +436,15 @@ def draw_verdict(
 ) -> None:
     """Draw one verdict of the monitor: the region (dynamic, static), M, C, removed, distance.
 
-    The dynamic region (``verdict.region_dynamic``: people, new objects; minus
-    ``static_region`` when given) is drawn in a saturated colour; the static region
+    The dynamic region (people, new objects) is drawn in a saturated colour: given
+    ``static_region``, a verdict with ``region_dynamic_drawing()`` (the monitor's) is drawn
+    from those triangles, its kept pieces as they are (milliseconds; the union of thousands
+    of pieces as ``region_dynamic`` takes seconds), else ``region_dynamic`` minus
+    ``static_region``, else ``region_dynamic``; the static region
     (``static_region``, or ``region`` minus ``region_dynamic``) as a faint tint near the
     robot and hidden beyond; together they are all of ``region``. M, C and the
-    removed components are drawn hidden. A verdict without ``region_dynamic`` has its
+    removed components are drawn hidden (a component with ``drawing()``, the monitor's,
+    from those triangles: its pieces, not their union). A verdict without ``region_dynamic`` has its
     whole ``region`` drawn as dynamic. The closest-distance segment joins the point of R
     and the point of the robot, coloured by the speed scale (red = stop, yellow, green =
     full speed), with the closest link outlined and a label giving the distance, the link
@@ -441,16 +464,24 @@ def draw_verdict(
         style: Colours.
     """
     regions = vis[prefix]["regions"]
-    dynamic = getattr(verdict, "region_dynamic", None)
-    if dynamic is None:
-        dynamic, static = verdict.region, None
-    elif static_region is not None:
-        # What this cycle adds to the static region: the noise sheets restored under a
-        # kept piece partly lie in the static region already, and are drawn with it.
-        dynamic, static = dynamic - static_region, static_region
+    drawing = getattr(verdict, "region_dynamic_drawing", None)
+    if callable(drawing) and static_region is not None:
+        # The monitor's verdict: what this cycle adds, as its pieces' triangles (no union
+        # of thousands of pieces: milliseconds where the manifold takes seconds).
+        vertices, faces = drawing()
+        draw_triangles(regions["dynamic"], vertices, faces, style.region, style.region_opacity)
+        static = static_region
     else:
-        static = verdict.region - dynamic
-    draw_manifold(regions["dynamic"], dynamic, style.region, style.region_opacity)
+        dynamic = getattr(verdict, "region_dynamic", None)  # a property: built when read
+        if dynamic is None:
+            dynamic, static = verdict.region, None
+        elif static_region is not None:
+            # What this cycle adds to the static region: the noise sheets restored under a
+            # kept piece partly lie in the static region already, and are drawn with it.
+            dynamic, static = dynamic - static_region, static_region
+        else:
+            static = verdict.region - dynamic
+        draw_manifold(regions["dynamic"], dynamic, style.region, style.region_opacity)
     q = getattr(verdict, "q", None)
     has_q = q is not None and len(q) > 0
     near = None
@@ -475,12 +506,13 @@ def draw_verdict(
     removed = regions["removed"]
     removed.delete()
     for k, component in enumerate(verdict.removed):
-        draw_manifold(
-            removed[f"{k}_{safe_name(component.rule)}"],
-            component.mesh,
-            style.removed,
-            style.removed_opacity,
-        )
+        path = removed[f"{k}_{safe_name(component.rule)}"]
+        drawing = getattr(component, "drawing", None)
+        if callable(drawing):  # the monitor's: its pieces as they are, not their union
+            vertices, faces = drawing()
+            draw_triangles(path, vertices, faces, style.removed, style.removed_opacity)
+        else:
+            draw_manifold(path, component.mesh, style.removed, style.removed_opacity)
     if len(verdict.removed):
         _set_visible(removed, False)
     draw_distance(

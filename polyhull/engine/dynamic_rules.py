@@ -74,7 +74,7 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import OverlapSweep, any_overlap, group_bounds
-from .pieces import PARALLEL_MIN, vertex_bounds
+from .pieces import PARALLEL_MIN, hexahedra_triangles, vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 from .threads import share
 
@@ -580,7 +580,7 @@ def judge_dynamic(
     removed_c = rule_of != ""
     keep = ~removed_c[labels] & ~shell_cut
 
-    removed = _removed(labels, K, lo, hi, volumes, shell_cut, removed_c, rule_of, c.volume, make_mesh)
+    removed = _removed(labels, K, lo, hi, volumes, shell_cut, removed_c, rule_of, c.volume, make_mesh, vertices)
 
     kept_k = np.unique(labels[keep])
     # Only components that pass too_small and flying on their own (not only because they
@@ -667,10 +667,11 @@ def _removed(
     rule_of: np.ndarray,
     component_volume: ArrayF64,
     make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
+    vertices: ArrayF64,
 ) -> tuple[RemovedComponent, ...]:
     """The removals to report: per component, its pieces the shell rule cut (``too_thin``),
     then every component a rule removed whole (``rule_of``, of ``component_volume``),
-    with volume and centroid."""
+    with volume and centroid (the pieces' ``vertices`` (N, 8, 3) for their drawing)."""
     removed = []
     # each component's pieces, in order (one sort, not a pass over all pieces per component)
     by_label = np.argsort(labels, kind="stable")
@@ -679,7 +680,7 @@ def _removed(
     def one(rule: str, idx: np.ndarray, volume: float | None = None) -> RemovedComponent:
         vol = float(volumes[idx].sum())
         centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(vol, 1e-12)
-        return RemovedComponent(rule, vol if volume is None else volume, centroid, LazyMesh(make_mesh, idx))
+        return RemovedComponent(rule, vol if volume is None else volume, centroid, LazyMesh(make_mesh, idx, vertices))
 
     for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
         idx = by_label[starts[k] : starts[k + 1]]
@@ -1023,14 +1024,20 @@ def _sheet_runs(cells, heights, step):  # pragma: no cover - compiled
 
 
 class LazyMesh:
-    """A removed component's mesh, ``make(arg)``, built when first read."""
+    """A removed component's mesh, ``make(idx)``, built when first read; the component is
+    the union of the hexahedra ``pieces[idx]`` (``pieces`` (N, 8, 3))."""
 
-    def __init__(self, make, idx: np.ndarray) -> None:  # noqa: ANN001
+    def __init__(self, make, idx: np.ndarray, pieces: ArrayF64) -> None:  # noqa: ANN001
         self._make = make
         self._idx = idx
+        self._pieces = pieces
         self._mesh = None
 
     def get(self):  # noqa: ANN201
         if self._mesh is None:
             self._mesh = self._make(self._idx)
         return self._mesh
+
+    def drawing(self) -> tuple[ArrayF64, np.ndarray]:
+        """Its hexahedra as triangles, not united (:func:`polyhull.engine.pieces.hexahedra_triangles`)."""
+        return hexahedra_triangles(self._pieces[self._idx])
