@@ -1073,8 +1073,7 @@ class Monitor:
             else (lambda z, c=cam: np.maximum(0.0, 2.0 * c.tau(z) - pad))
             for cam in self.cell.cameras
         ]
-        union = m3.Manifold.batch_boolean([f for f in self.static.free if not f.is_empty()], m3.OpType.Add) ^ self._zone
-        return robot_occlusion(self.cell.cameras, self.static.free, union, padded_world, bands)
+        return robot_occlusion(self.cell.cameras, self.static.free, self._zone, padded_world, bands)
 
 
 def _robot_body(padded_world: list[ArrayF64]) -> m3.Manifold:

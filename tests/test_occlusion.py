@@ -8,7 +8,7 @@ import pytest
 import trimesh
 from conftest import make_camera, manifold_contains
 
-from polyhull.occlusion import grow_piece, robot_occlusion, shadow_hull
+from polyhull.occlusion import grow_piece, robot_occlusion, robot_shadows, shadow_hull
 from polyhull.person import sample_points_inside
 from polyhull.robot import Robot
 
@@ -73,6 +73,30 @@ def test_shadow_hull_straddling_camera_plane_is_none() -> None:
 def test_robot_occlusion_empty_without_pieces() -> None:
     cam = make_camera()
     assert robot_occlusion([cam], [cam.frustum()], cam.frustum(), []).is_empty()
+
+
+def test_robot_occlusion_is_its_definition() -> None:
+    """M, built only near the shadows, is ``F_static \\ F_static+robot`` built over the whole
+    zone: the union of the free regions less each camera's free region outside its shadows
+    (three cameras, free regions that end on a floor and a box, two pieces, with a band)."""
+    cams = [
+        make_camera(position=(2.0, 0.3, 3.0), target=(0.0, 0.0, 0.5)),
+        make_camera(position=(-1.5, 1.8, 2.5), target=(0.0, 0.0, 0.5)),
+        make_camera(position=(0.2, -2.2, 2.8), target=(0.3, 0.0, 0.3)),
+    ]
+    zone = m3.Manifold.cube((4.0, 4.0, 3.0), True).translate((0.0, 0.0, 1.5))
+    solid = m3.Manifold.cube((0.6, 0.6, 0.8)).translate((-0.9, -0.8, 0.0))
+    free = [(c.frustum() ^ zone) - solid - m3.Manifold.cube((4.0, 4.0, 0.2), True).translate((0.0, 0.0, 0.1)) for c in cams]
+    pieces = [_unit_cube_vertices((0.0, 0.1, 0.6), 0.15), _unit_cube_vertices((0.25, -0.1, 1.0), 0.1)]
+    bands = [lambda z: 0.02 * z, None, lambda z: np.full_like(z, 0.05)]
+    got = robot_occlusion(cams, free, zone, pieces, bands)
+    shadows = [robot_shadows(c, pieces, b) for c, b in zip(cams, bands, strict=True)]
+    union = m3.Manifold.batch_boolean(free, m3.OpType.Add)
+    seen = [m3.Manifold.batch_boolean([f, *s], m3.OpType.Subtract) for f, s in zip(free, shadows, strict=True)]
+    want = m3.Manifold.batch_boolean([union, *seen], m3.OpType.Subtract)
+    assert want.volume() > 0.02  # M is not trivially empty here
+    assert (got - want).volume() == pytest.approx(0.0, abs=1e-9)
+    assert (want - got).volume() == pytest.approx(0.0, abs=1e-9)
 
 
 def test_occlusion_contains_robot_body(small_cell, small_monitor, small_sim) -> None:  # noqa: ANN001
