@@ -16,11 +16,11 @@ from typing import Any
 import manifold3d as m3
 import numpy as np
 
+from .distance import hexahedra_triangles
 from .engine.dynamic_rules import LazyMesh
 from .engine.pieces import (
     CameraStack,
     PieceSet,
-    hexahedra_triangles,
     merge_adjacent,
     piece_vertices,
     piece_volumes,

@@ -903,8 +903,8 @@ def test_draw_verdict_draws_the_verdicts_fast_drawing_given_the_static_region() 
 def test_removed_components_of_pieces_are_drawn_from_their_pieces() -> None:
     """A removed component made of pieces (the monitor's) is drawn from its hexahedra as they
     are, without building its union; one given as a manifold, from the manifold."""
+    from polyhull.distance import hexahedra_triangles
     from polyhull.engine.dynamic_rules import LazyMesh
-    from polyhull.engine.pieces import hexahedra_triangles
     from polyhull.plausibility import RemovedComponent
 
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=np.float64)

@@ -71,10 +71,11 @@ import numba as nb
 import numpy as np
 
 from ..cell import Cell, PlausibilityParams, Zone
+from ..distance import hexahedra_triangles
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
 from .boxes import OverlapSweep, any_overlap, group_bounds
-from .pieces import PARALLEL_MIN, hexahedra_triangles, vertex_bounds
+from .pieces import PARALLEL_MIN, vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 from .threads import share
 
@@ -1039,5 +1040,5 @@ class LazyMesh:
         return self._mesh
 
     def drawing(self) -> tuple[ArrayF64, np.ndarray]:
-        """Its hexahedra as triangles, not united (:func:`polyhull.engine.pieces.hexahedra_triangles`)."""
+        """Its hexahedra as triangles, not united (:func:`polyhull.distance.hexahedra_triangles`)."""
         return hexahedra_triangles(self._pieces[self._idx])

@@ -50,32 +50,11 @@ __all__ = [
     "PyramidStack",
     "carve",
     "columns_in_m",
-    "hexahedra_triangles",
     "merge_adjacent",
     "piece_vertices",
     "piece_volumes",
     "vertex_bounds",
 ]
-
-
-HEXAHEDRON_TRIANGLES = np.array(
-    [
-        [0, 1, 2], [0, 2, 3],  # the near face (vertices 0-3)
-        [4, 6, 5], [4, 7, 6],  # the far face (4-7, in the same order)
-        [0, 5, 1], [0, 4, 5], [1, 6, 2], [1, 5, 6],  # the sides: vertex i and i + 4
-        [2, 7, 3], [2, 6, 7], [3, 4, 0], [3, 7, 4],
-    ],
-    dtype=np.int64,
-)
-"""The 12 triangles of a piece's hexahedron (:func:`piece_vertices`' vertex order)."""
-
-
-def hexahedra_triangles(vertices: ArrayF64) -> tuple[ArrayF64, np.ndarray]:
-    """Hexahedra (N, 8, 3) as triangles to draw: (8N, 3) vertices and (12N, 3) vertex
-    indices, each hexahedron as it is (no union: overlapping ones keep their inner faces)."""
-    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 8, 3)
-    faces = (8 * np.arange(len(v))[:, None, None] + HEXAHEDRON_TRIANGLES[None]).reshape(-1, 3)
-    return v.reshape(-1, 3), faces
 
 
 @dataclass(frozen=True, eq=False)
