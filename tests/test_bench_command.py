@@ -59,6 +59,7 @@ def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ig
     exact_gap, loss = person["exact_hull_gap_m"], person["engine_minus_exact_m"]
     assert person["exact_hull_grid_m"] == 0.025 and 1 <= person["exact_hull_cycles"] <= 3
     assert 0 <= person["exact_hull_cycles_clipped"] <= 3 and person["exact_hull_seconds"] > 0
+    assert 0 <= person["exact_hull_cycles_static_nearer"] <= person["exact_hull_cycles"]
     assert -0.05 <= exact_gap["median"] <= exact_gap["max"] < 6.0
     assert math.isfinite(loss["median"]) and loss["max"] >= loss["median"]
     empty = bench_json["empty_cell"]
