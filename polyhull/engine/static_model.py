@@ -727,6 +727,13 @@ class StaticModel:
 
         return manifold_to_fcl(self.region)
 
+    @functools.cached_property
+    def region_removed(self) -> m3.Manifold:
+        """R2_static minus R3_static, what the static rules removed (the noise sheets over
+        the surfaces, mostly), built on first use: a sheet box kept under a piece adds its
+        part of this to the region (:meth:`polyhull.verdict.Verdict.region_dynamic_drawing`)."""
+        return self.region_r2 - self.region
+
     @classmethod
     def load_or_build(
         cls, cell: Cell, references: dict[str, np.ndarray], cache_dir: Path | None = None
