@@ -112,6 +112,13 @@ def _run(args: argparse.Namespace) -> int:
             _report(verdict)
 
     def draw(vis: Any) -> None:
+        if verdict is not None:
+            print(
+                "polyhull view: building the hull C and the robot occlusion M for their hidden "
+                "layers (manifold booleans: seconds to a minute)",
+                file=sys.stderr,
+                flush=True,
+            )
         pv.draw_scene(
             vis,
             cell,
