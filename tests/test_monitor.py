@@ -339,7 +339,10 @@ def test_the_dynamic_region_drawing_is_what_the_cycle_adds(small_cell, small_sim
     tri = vertices[faces[12 * len(drawn) :]]
     enclosed = float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0
     sheets = g.get("dynamic_sheets")
-    assert enclosed == pytest.approx((sheets - monitor.static.region).volume(), rel=1e-9, abs=1e-12)
+    # (the drawing builds it as the boxes with R2_static - R3_static: the same set by other
+    # booleans, equal to 2e-9 relative with a freshly built static model; one sheet box less
+    # would be 1e-4 m^3)
+    assert enclosed == pytest.approx((sheets - monitor.static.region).volume(), rel=1e-6, abs=1e-9)
     # and the pieces (all of them) with the sheets are region_dynamic: points classified by
     # the pieces' half-spaces and by the sheets' manifold, against the union's manifold
     dynamic = v.region_dynamic
