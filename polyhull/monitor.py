@@ -112,7 +112,7 @@ from .verdict import (
     CycleImages,
     Verdict,
     gaps_removed,
-    hexahedra_manifold,
+    pieces_manifold,
     pieces_removed,
 )
 
@@ -677,7 +677,7 @@ class Monitor:
         geometry = CycleGeometry(
             static=self.static,
             zone=self._zone,
-            pieces_parts=(allp.vertices, gap_verts),
+            pieces_parts=(allp, PieceSet(gap_boxes, gap_verts)),
             kept_pieces=refined.pieces.vertices,
             kept_boxes=refined.pieces.boxes,
             stack=self._stack,
@@ -895,7 +895,7 @@ class Monitor:
             timings,
             "plausibility",
             lambda: judge_dynamic(
-                allp.vertices, vols, at_robot, ctx, lambda idx: hexahedra_manifold(allp.vertices[idx]),
+                allp.vertices, vols, at_robot, ctx, lambda idx: pieces_manifold(allp.boxes[idx], self._stack),
                 memory=np.arange(len(allp)) >= n_pieces, pool=self._pool,
             ),
         )
@@ -1044,7 +1044,7 @@ class Monitor:
             out[near] = winding_numbers(points[near], v, t) > 0.5
         return out
 
-    def _full_pieces(self, free_stack: ImageStack, carving: _Carving) -> ArrayF64:
+    def _full_pieces(self, free_stack: ImageStack, carving: _Carving) -> PieceSet:
         """Every camera's segments without the robot's shadow clip (for the hull C)."""
         parts = []
         ends = ImageStack(self._stack)
@@ -1055,10 +1055,10 @@ class Monitor:
             if len(tiles):
                 parts.append(np.column_stack([np.full(len(tiles), float(i)), tiles]))
         if not parts:
-            return np.zeros((0, 8, 3))
+            return PieceSet.empty()
         # C is drawn and measured, never used for the distance: coarse pieces (a superset)
         pieces, _ = carving.coarse(np.concatenate(parts), free_stack, ends)
-        return pieces.vertices
+        return pieces
 
     def _occlusion(self, padded_world: list[ArrayF64]) -> m3.Manifold:
         """M of the padded robot (built when read)."""

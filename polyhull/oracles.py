@@ -283,13 +283,13 @@ def dynamic_volume_outside_static(monitor: Any, verdict: Any) -> float:
     the solids: what this cycle adds to the static region (exact, by manifold3d booleans;
     off the hot path, a few hundred ms). The sheet boxes under kept pieces are part of
     R2_static, inside C_static, and add nothing here."""
-    from .verdict import hexahedra_manifold
+    from .verdict import pieces_manifold
 
     geometry = verdict._geometry
     if geometry is None or len(geometry.kept_pieces) == 0:
         return 0.0
     s = monitor.static
-    added = (hexahedra_manifold(geometry.kept_pieces) ^ monitor._zone) - s.hull - s.solids
+    added = (pieces_manifold(geometry.kept_boxes, geometry.stack) ^ monitor._zone) - s.hull - s.solids
     return float(added.volume())
 
 

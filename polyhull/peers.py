@@ -436,7 +436,7 @@ class PeerComparison:
         self._true_distances.append(true)
 
         # polyhull: C by its point oracles; R3 (the region its distance uses) exactly
-        full = geo.full_pieces()
+        full = geo.full_pieces().vertices
         in_c = (monitor.static.hull_contains(p, k_of_n) | points_in_hexahedra(p, full)) & ~solid
         person_m = mesh_to_manifold(person, "person") ^ geo.zone  # the person's part in Z
         outside = person_m - verdict.region
