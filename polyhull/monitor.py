@@ -654,6 +654,11 @@ class Monitor:
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
         self._remember(t, allp, judged, images, float(dist.distance))
+        # the removals to report (before the latency: the caller waits for them too)
+        gap_boxes = images.gaps
+        gap_verts = piece_vertices(gap_boxes, self._stack)
+        refine_removed = (pieces_removed("too_thin", refined.cut, self._stack),) if len(refined.cut) else ()
+        removed = self.static.removed + gaps_removed(gap_boxes, gap_verts, self._stack) + judged.removed + refine_removed
 
         latency = time.perf_counter() - t_start
         decision = self._timed(
@@ -669,9 +674,6 @@ class Monitor:
         stop = bool(self._latched)
         timings["total"] = (time.perf_counter() - t_start) * 1e3
 
-        gap_boxes = images.gaps
-        gap_verts = piece_vertices(gap_boxes, self._stack)
-        refine_removed = (pieces_removed("too_thin", refined.cut, self._stack),) if len(refined.cut) else ()
         # what the lazy geometry reads (not ``images``: the rasters' lease is last_images' only)
         padded_world, free_stack = pose.padded_world, images.bufs.free
         geometry = CycleGeometry(
@@ -691,7 +693,7 @@ class Monitor:
         return Verdict(
             stamp=t,
             q=np.array(qv, dtype=np.float64),  # a copy: check_q may return the caller's array
-            removed=self.static.removed + gaps_removed(gap_boxes, gap_verts, self._stack) + judged.removed + refine_removed,
+            removed=removed,
             min_distance=dist.distance,
             closest_points=dist.points,
             closest_link=dist.link,
