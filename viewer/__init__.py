@@ -10,7 +10,9 @@ Draw into your own meshcat visualizer from your controller code::
     verdict = monitor.step(frames, q, stamp=t)
     pv.draw_verdict(vis, verdict, robot=robot, static_region=monitor.static.region)
                                             # R (dynamic saturated, static faint), M, C,
-                                            # removed parts (hidden), distance and label
+                                            # removed parts (hidden), distance and label;
+                                            # every cycle: hull=False, occlusion=False
+                                            # (C and M are manifold booleans: seconds)
 
 or write a standalone HTML file that opens with no server::
 
