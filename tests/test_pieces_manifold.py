@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import make_camera
+from conftest import make_camera, manifold_contains
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from polyhull.distance import points_in_hexahedra
 from polyhull.engine.pieces import CameraStack, piece_vertices
-from polyhull.verdict import hexahedra_manifold, pieces_manifold
+from polyhull.verdict import pieces_manifold
 
 CAMERAS = CameraStack.of(
     [
@@ -40,14 +41,25 @@ def _frustum_volume(b: np.ndarray) -> float:
 
 @settings(max_examples=12, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 40), cameras=st.integers(1, 2))
-def test_the_union_is_the_union_of_the_world_hexahedra(seed: int, n: int, cameras: int) -> None:
-    boxes = _boxes(np.random.default_rng(seed), n, cameras)
+def test_the_union_holds_exactly_the_points_of_the_world_hexahedra(seed: int, n: int, cameras: int) -> None:
+    """Points classified by the pieces' half-spaces (``points_in_hexahedra``) against the
+    union's manifold: half in the pieces (moved up to about 5 cm), half in their bounding
+    box. (Not the symmetric difference with the world hexahedra's union: the two meshes
+    share surfaces triangulated differently, and manifold3d's difference of such meshes
+    leaves slivers of up to 1e-3 m^3 where both hold exactly the same points.)"""
+    rng = np.random.default_rng(seed)
+    boxes = _boxes(rng, n, cameras)
+    vertices = piece_vertices(boxes, CAMERAS)
     got = pieces_manifold(boxes, CAMERAS)
-    want = hexahedra_manifold(piece_vertices(boxes, CAMERAS))
-    scale = want.volume()
-    assert scale > 0
-    assert got.volume() == pytest.approx(scale, rel=1e-6)
-    assert (got - want).volume() <= 1e-6 * scale and (want - got).volume() <= 1e-6 * scale
+    weights = rng.dirichlet(np.ones(8), size=1500)
+    inside = np.einsum("nk,nkj->nj", weights, vertices[rng.integers(0, n, 1500)])
+    lo, hi = vertices.min(axis=(0, 1)), vertices.max(axis=(0, 1))
+    points = np.concatenate([inside + rng.normal(0.0, 0.03, inside.shape), rng.uniform(lo, hi, size=(1500, 3))])
+    want = points_in_hexahedra(points, vertices)
+    assert want.sum() > 300 and (~want).sum() > 300
+    np.testing.assert_array_equal(manifold_contains(got, points, half=1e-9), want)
+    # and no more volume than the pieces have (overlaps count once)
+    assert got.volume() <= _frustum_volume(boxes) * (1 + 1e-9)
 
 
 def test_disjoint_pieces_of_one_camera_keep_their_exact_volume() -> None:
