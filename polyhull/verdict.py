@@ -56,10 +56,12 @@ def pieces_manifold(boxes: ArrayF64, stack: CameraStack) -> m3.Manifold:
     pieces' world hexahedra, exactly. A camera's pieces meet face to face; united in
     image space their faces are axis-aligned (about 25 times faster than uniting the
     world hexahedra, whose coplanar faces at odd angles also lose slivers to manifold3d's
-    tolerance). The cameras' unions are then united in the world.
+    tolerance). The cameras' unions are then united in the world. Siblings that carving
+    split and the rules kept whole are merged back first (:func:`merge_adjacent`: the
+    same set from about a third as many boxes).
     """
     b = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
-    b = b[(b[:, 6] > b[:, 5]) & (b[:, 2] >= b[:, 1]) & (b[:, 4] >= b[:, 3])]
+    b = merge_adjacent(b[(b[:, 6] > b[:, 5]) & (b[:, 2] >= b[:, 1]) & (b[:, 4] >= b[:, 3])])
     parts = []
     for c in np.unique(b[:, 0]).astype(np.int64):
         own = b[b[:, 0] == c]
