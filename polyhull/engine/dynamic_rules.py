@@ -208,8 +208,6 @@ class DynamicResult:
         inside: (N,) pieces inside a shell or a noise sheet (all False without
             ``too_thin``).
         removed: The removed components with their rule (mesh built when read).
-        kept_lo: (K, 3) bounding boxes of the kept components (the next cycle's history);
-            ``kept_hi`` their maxima.
         seeds: (N,) the kept pieces the next cycle's shadow memory grows from: pieces (not
             of the memory, not inside a shell or a noise sheet) of components that pass
             too_small on their own volume and stand on a surface or touch the boundary.
@@ -224,8 +222,6 @@ class DynamicResult:
     spared: np.ndarray
     inside: np.ndarray
     removed: tuple[RemovedComponent, ...]
-    kept_lo: ArrayF64
-    kept_hi: ArrayF64
     seeds: np.ndarray
     legs: ArrayF64
 
@@ -498,9 +494,8 @@ def judge_dynamic(
     its threads."""
     n = vertices.shape[0]
     if n == 0:
-        z = np.zeros((0, 3))
         none = np.zeros(0, bool)
-        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), z, z, none, np.zeros((0, 8, 3)))
+        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), none, np.zeros((0, 8, 3)))
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
@@ -583,7 +578,6 @@ def judge_dynamic(
 
     removed = _removed(labels, K, lo, hi, volumes, shell_cut, removed_c, rule_of, c.volume, make_mesh, vertices)
 
-    kept_k = np.unique(labels[keep])
     # Only components that pass too_small and flying on their own (not only because they
     # touch R3_static or the boundary) keep the sheet under them: a person does; noise
     # spared next to a static blind region does not need a floor under it.
@@ -596,7 +590,7 @@ def judge_dynamic(
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
     legs = hidden_legs(lo, hi, own & touch_m[labels], ctx) if p.too_thin else np.zeros((0, 8, 3))
-    return DynamicResult(keep, labels, own, spared, inside, removed, clo[kept_k], chi[kept_k], seeds, legs)
+    return DynamicResult(keep, labels, own, spared, inside, removed, seeds, legs)
 
 
 class _Components(NamedTuple):
