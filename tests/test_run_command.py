@@ -24,6 +24,46 @@ def test_json_with_export_keeps_stdout_json_only(tmp_path: Path, capsys: pytest.
     assert sorted(p.name for p in out.iterdir()) == ["hull.ply", "region.ply", "robot_occlusion.ply"]
 
 
+class _Terminal:
+    """A stderr that says it is a terminal 100 columns wide (tqdm draws its bar there)."""
+
+    def __init__(self) -> None:
+        self.text: list[str] = []
+
+    def write(self, s: str) -> int:
+        self.text.append(s)
+        return len(s)
+
+    def flush(self) -> None:
+        pass
+
+    def isatty(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        raise OSError("no descriptor")
+
+
+def test_building_the_regions_shows_a_bar_on_a_terminal_only(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The volumes build every manifold (seconds to a minute on a large cell): a progress
+    bar on a terminal's stderr names the region being built; stdout stays JSON only, and a
+    stderr that is not a terminal (a log, a pipe) gets no bar."""
+    monkeypatch.setenv("COLUMNS", "100")
+    terminal = _Terminal()
+    monkeypatch.setattr("sys.stderr", terminal)
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["volume_region"] > 0
+    bar = "".join(terminal.text)
+    assert "building the regions" in bar and "region_r2" in bar and "region_dynamic" in bar, bar
+    monkeypatch.undo()
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert "building the regions" not in captured.err
+    json.loads(captured.out)
+
+
 def test_text_summarises_removals_per_rule(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["run", str(CELL), "--frames", str(FRAMES)]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("removed")]
