@@ -74,6 +74,13 @@ def frames_files(paths: list[Path]) -> list[Path]:
     return out
 
 
+_EXPORTED = ("hull", "robot_occlusion", "region")
+"""The verdict's manifolds ``--export`` writes (C, M, R3)."""
+
+_VOLUMES = ("hull", "robot_occlusion", "region_r2", "region", "region_dynamic")
+"""The verdict's manifolds that :meth:`polyhull.Verdict.volumes` measures."""
+
+
 def export_regions(verdict: object, directory: Path) -> list[Path]:
     """Write C, M and R of a verdict as watertight PLY files (world frame) into ``directory``."""
     import numpy as np
@@ -81,7 +88,7 @@ def export_regions(verdict: object, directory: Path) -> list[Path]:
 
     directory.mkdir(parents=True, exist_ok=True)
     written = []
-    for name in ("hull", "robot_occlusion", "region"):
+    for name in _EXPORTED:
         manifold = getattr(verdict, name)
         mesh = manifold.to_mesh64()
         tm = trimesh.Trimesh(
@@ -93,8 +100,6 @@ def export_regions(verdict: object, directory: Path) -> list[Path]:
     return written
 
 
-_VOLUMES = ("hull", "robot_occlusion", "region_r2", "region", "region_dynamic")
-"""The verdict's manifolds that :meth:`polyhull.Verdict.volumes` measures."""
 
 
 def _build_regions(verdict: object, names: tuple[str, ...]) -> None:
@@ -140,8 +145,10 @@ def _run(args: argparse.Namespace) -> int:
     recorded = recordings[-1]
     missing = [c.name for c in cell.cameras if c.name not in recorded.frames]
     paths: list[Path] = []
-    if args.export is not None or not (args.json and several):
-        _build_regions(verdict, _VOLUMES if not (args.json and several) else ("hull", "robot_occlusion", "region"))
+    if not (args.json and several):
+        _build_regions(verdict, _VOLUMES)  # the volumes printed below
+    elif args.export is not None:
+        _build_regions(verdict, _EXPORTED)
     if args.export is not None:
         try:
             paths = export_regions(verdict, args.export)
