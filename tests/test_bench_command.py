@@ -142,6 +142,9 @@ def test_bench_camera_ring_runs(capsys: pytest.CaptureFixture[str]) -> None:
         (("--empty-cycles", "-1"), "--empty-cycles"),
         (("--tightness-samples", "-1"), "--tightness-samples"),
         (("--seed", "-1"), "--seed"),
+        (("--pace", "0"), "--pace"),
+        (("--pace", "nan"), "--pace"),
+        (("--pace", "2000"), "--pace"),
     ],
 )
 def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pytest.CaptureFixture[str]) -> None:
@@ -151,3 +154,35 @@ def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pyte
     assert captured.out == ""
     lines = captured.err.strip().splitlines()
     assert len(lines) == 1 and flag in lines[0], captured.err
+
+
+def test_paced_cycles_start_at_their_ticks() -> None:
+    """``--pace HZ``: cycle k starts no earlier than k / HZ after the first (the thread sleeps
+    until then, as a controller waiting for its frames); without it they run back to back."""
+    import time
+    from dataclasses import dataclass, field
+
+    from polyhull.commands.bench import _time_walk
+
+    @dataclass(frozen=True)
+    class _Verdict:
+        timings: dict = field(default_factory=lambda: {"total": 1.0})  # type: ignore[type-arg]
+        _geometry: object = None
+
+    class _Monitor:
+        def __init__(self) -> None:
+            self.started: list[float] = []
+
+        def step(self, frames: object, q: object, stamp: float) -> _Verdict:
+            self.started.append(time.perf_counter())
+            return _Verdict()
+
+    inputs = [({}, np.zeros(6), 0.1 * k, None) for k in range(5)]
+    paced = _Monitor()
+    stages, first, verdicts = _time_walk(paced, inputs, 1, 0, None, False, pace=50.0)  # type: ignore[arg-type]
+    assert len(verdicts) == 5 and len(stages["total"]) == 4 and len(first) == 2
+    gaps = np.diff(paced.started)
+    assert np.all(np.asarray(paced.started) - paced.started[0] >= np.arange(5) / 50.0 - 1e-3), gaps
+    back_to_back = _Monitor()
+    _time_walk(back_to_back, inputs, 1, 0, None, False)  # type: ignore[arg-type]
+    assert len(back_to_back.started) == 5

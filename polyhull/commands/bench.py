@@ -21,6 +21,10 @@ Five parts, on one monitor (the static model is built once):
    the distance departs from the static region's own distance;
 5. with ``--peers N``: OctoMap on the frames of the last N timed cycles, side by side with
    the verdicts (:mod:`polyhull.peers`, the optional ``peers`` extra).
+
+With ``--pace HZ`` the walk's cycles start at that rate, the thread sleeping between them as
+a controller waiting for its frames does (by default they run back to back): on a machine
+whose idle CPU wakes up slowly, the cycles take longer than back to back.
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ RING_TARGET_Z = 1.6  # [m], the cameras look at the zone centre at this height (
 MAX_SIDE = 4096  # [px]
 MIN_SIDE = 16  # [px]
 MAX_SAMPLES = 10_000_000
+MAX_PACE = 1000.0  # [Hz]
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -102,6 +107,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--resolution", default=None, metavar="WxH", help="rescale every camera's intrinsics to W x H px"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor effects and the samples (default 0)")
+    p.add_argument(
+        "--pace", type=float, default=None, metavar="HZ",
+        help="run the walk's cycles at HZ, sleeping until each cycle's tick as a controller "
+        "waiting for its frames does (default: back to back); an idle CPU wakes up slower",
+    )
     p.add_argument(
         "--peers",
         type=int,
@@ -205,6 +215,7 @@ def run_bench(
     progress: bool = False,
     peers: int = 0,
     peers_options: Any = None,
+    pace: float | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark and its checks; return the figures (see the module docstring).
 
@@ -230,7 +241,7 @@ def run_bench(
             monitor, lambda frames, points: exact_hull(monitor, frames, points),
             options=peers_options, samples=tightness_samples or 100_000, seed=seed,
         )
-    stages, first, verdicts = _time_walk(monitor, inputs, warmup, min(peers, cycles), comparison, progress)
+    stages, first, verdicts = _time_walk(monitor, inputs, warmup, min(peers, cycles), comparison, progress, pace)
     total = np.asarray(stages.pop("total"))
 
     # 2. the person's distances; 3. tightness and misses on the last person cycle (before
@@ -254,6 +265,7 @@ def run_bench(
             "cycles": cycles,
             "warmup": warmup,
             "dt_s": DT,
+            "pace_hz": pace,
             "seed": seed,
             "targets": f"one person walking at {WALK_SPEED} m/s toward the robot and back",
             "robot": "6-axis arm in motion",
@@ -315,17 +327,30 @@ def _render_walk(monitor: Any, sim: Any, n: int, seed: int, progress: bool) -> l
 
 
 def _time_walk(
-    monitor: Any, inputs: list[tuple[Any, np.ndarray, float, Any]], warmup: int, peers: int, comparison: Any, progress: bool
+    monitor: Any,
+    inputs: list[tuple[Any, np.ndarray, float, Any]],
+    warmup: int,
+    peers: int,
+    comparison: Any,
+    progress: bool,
+    pace: float | None = None,
 ) -> tuple[dict[str, list[float]], list[float], list[Any]]:
-    """The walk's cycles back to back: every stage's times [ms] after the ``warmup`` cycles,
-    the first two cycles' [ms] (the warm-up's effect) and the verdicts (only the last one
-    with its regions). With ``comparison``, OctoMap on the last ``peers`` cycles."""
+    """The walk's cycles back to back (with ``pace`` [Hz], each started at its tick, the
+    thread sleeping until then): every stage's times [ms] after the ``warmup`` cycles, the
+    first two cycles' [ms] (the warm-up's effect) and the verdicts (only the last one with
+    its regions). With ``comparison``, OctoMap on the last ``peers`` cycles."""
     n = len(inputs)
     stages: dict[str, list[float]] = {}
     first: list[float] = []
     verdicts = []
     with _progress(n, "cycles", progress) as bar:
         for k, (frames, q, t, person) in enumerate(inputs):
+            if k == 0:
+                start = time.perf_counter()  # cycle k's tick: k / pace after the first's
+            elif pace is not None:
+                wait = start + k / pace - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
             v = monitor.step(frames, q, stamp=t)
             if comparison is not None and k >= n - peers:
                 bar.set_postfix_str("and OctoMap")
@@ -492,6 +517,8 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError(f"--seed must be >= 0, got {args.seed}")
     if args.peers < 0:
         raise PolyhullError(f"--peers must be >= 0 cycles, got {args.peers}")
+    if args.pace is not None and not (math.isfinite(args.pace) and 0.0 < args.pace <= MAX_PACE):
+        raise PolyhullError(f"--pace must be a rate in (0, {MAX_PACE:g}] Hz, got {args.pace}")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 
@@ -512,13 +539,15 @@ def _run(args: argparse.Namespace) -> int:
         result = run_bench(
             args.cell, args.cycles, args.warmup, args.empty_cycles, args.tightness_samples,
             args.cameras, resolution, args.seed, progress=True, peers=args.peers, peers_options=peers_options,
+            pace=args.pace,
         )
     if args.json:
         print(json.dumps(_finite(result), indent=2))
         return 0
     w, c = result["workload"], result["cycle_ms"]
+    paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz"
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
-          f"{w['cycles']} cycles after {w['warmup']} warm-up")
+          f"{w['cycles']} cycles after {w['warmup']} warm-up, {paced}")
     print(f"{'stage':<16}{'median [ms]':>12}")
     for stage, ms in result["stages_ms_median"].items():
         ran = result["stages_cycles"][stage]
