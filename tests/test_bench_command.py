@@ -145,6 +145,7 @@ def test_bench_camera_ring_runs(capsys: pytest.CaptureFixture[str]) -> None:
         (("--pace", "0"), "--pace"),
         (("--pace", "nan"), "--pace"),
         (("--pace", "2000"), "--pace"),
+        (("--spin",), "--spin"),
     ],
 )
 def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pytest.CaptureFixture[str]) -> None:
@@ -183,6 +184,9 @@ def test_paced_cycles_start_at_their_ticks() -> None:
     assert len(verdicts) == 5 and len(stages["total"]) == 4 and len(first) == 2
     gaps = np.diff(paced.started)
     assert np.all(np.asarray(paced.started) - paced.started[0] >= np.arange(5) / 50.0 - 1e-3), gaps
+    spun = _Monitor()
+    _time_walk(spun, inputs, 1, 0, None, False, pace=50.0, spin=True)  # type: ignore[arg-type]
+    assert np.all(np.asarray(spun.started) - spun.started[0] >= np.arange(5) / 50.0 - 1e-3), np.diff(spun.started)
     back_to_back = _Monitor()
     _time_walk(back_to_back, inputs, 1, 0, None, False)  # type: ignore[arg-type]
     assert len(back_to_back.started) == 5

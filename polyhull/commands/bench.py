@@ -113,6 +113,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "waiting for its frames does (default: back to back); an idle CPU wakes up slower",
     )
     p.add_argument(
+        "--spin", action="store_true",
+        help="with --pace: wait for each tick in a busy loop instead of sleeping (keeps the CPU awake)",
+    )
+    p.add_argument(
         "--peers",
         type=int,
         nargs="?",
@@ -216,6 +220,7 @@ def run_bench(
     peers: int = 0,
     peers_options: Any = None,
     pace: float | None = None,
+    spin: bool = False,
 ) -> dict[str, Any]:
     """Run the benchmark and its checks; return the figures (see the module docstring).
 
@@ -241,7 +246,7 @@ def run_bench(
             monitor, lambda frames, points: exact_hull(monitor, frames, points),
             options=peers_options, samples=tightness_samples or 100_000, seed=seed,
         )
-    stages, first, verdicts = _time_walk(monitor, inputs, warmup, min(peers, cycles), comparison, progress, pace)
+    stages, first, verdicts = _time_walk(monitor, inputs, warmup, min(peers, cycles), comparison, progress, pace, spin)
     total = np.asarray(stages.pop("total"))
 
     # 2. the person's distances; 3. tightness and misses on the last person cycle (before
@@ -266,6 +271,7 @@ def run_bench(
             "warmup": warmup,
             "dt_s": DT,
             "pace_hz": pace,
+            "pace_wait": None if pace is None else ("spin" if spin else "sleep"),
             "seed": seed,
             "targets": f"one person walking at {WALK_SPEED} m/s toward the robot and back",
             "robot": "6-axis arm in motion",
@@ -334,9 +340,10 @@ def _time_walk(
     comparison: Any,
     progress: bool,
     pace: float | None = None,
+    spin: bool = False,
 ) -> tuple[dict[str, list[float]], list[float], list[Any]]:
     """The walk's cycles back to back (with ``pace`` [Hz], each started at its tick, the
-    thread sleeping until then): every stage's times [ms] after the ``warmup`` cycles, the
+    thread sleeping until then, or with ``spin`` waiting in a busy loop): every stage's times [ms] after the ``warmup`` cycles, the
     first two cycles' [ms] (the warm-up's effect) and the verdicts (only the last one with
     its regions). With ``comparison``, OctoMap on the last ``peers`` cycles."""
     n = len(inputs)
@@ -348,9 +355,12 @@ def _time_walk(
             if k == 0:
                 start = time.perf_counter()  # cycle k's tick: k / pace after the first's
             elif pace is not None:
-                wait = start + k / pace - time.perf_counter()
-                if wait > 0:
-                    time.sleep(wait)
+                tick = start + k / pace
+                if spin:
+                    while time.perf_counter() < tick:
+                        pass
+                else:
+                    time.sleep(max(tick - time.perf_counter(), 0.0))
             v = monitor.step(frames, q, stamp=t)
             if comparison is not None and k >= n - peers:
                 bar.set_postfix_str("and OctoMap")
@@ -519,6 +529,8 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError(f"--peers must be >= 0 cycles, got {args.peers}")
     if args.pace is not None and not (math.isfinite(args.pace) and 0.0 < args.pace <= MAX_PACE):
         raise PolyhullError(f"--pace must be a rate in (0, {MAX_PACE:g}] Hz, got {args.pace}")
+    if args.spin and args.pace is None:
+        raise PolyhullError("--spin waits for --pace's ticks: give --pace HZ too")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 
@@ -539,13 +551,13 @@ def _run(args: argparse.Namespace) -> int:
         result = run_bench(
             args.cell, args.cycles, args.warmup, args.empty_cycles, args.tightness_samples,
             args.cameras, resolution, args.seed, progress=True, peers=args.peers, peers_options=peers_options,
-            pace=args.pace,
+            pace=args.pace, spin=args.spin,
         )
     if args.json:
         print(json.dumps(_finite(result), indent=2))
         return 0
     w, c = result["workload"], result["cycle_ms"]
-    paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz"
+    paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz ({w['pace_wait']})"
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
           f"{w['cycles']} cycles after {w['warmup']} warm-up, {paced}")
     print(f"{'stage':<16}{'median [ms]':>12}")
