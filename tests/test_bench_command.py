@@ -157,9 +157,10 @@ def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pyte
     assert len(lines) == 1 and flag in lines[0], captured.err
 
 
-def test_paced_cycles_start_at_their_ticks() -> None:
+def test_paced_cycles_start_at_their_ticks(monkeypatch: pytest.MonkeyPatch) -> None:
     """``--pace HZ``: cycle k starts no earlier than k / HZ after the first (the thread sleeps
-    until then, as a controller waiting for its frames); without it they run back to back."""
+    until then, as a controller waiting for its frames; with ``spin`` it waits without
+    sleeping); without it the cycles run back to back, never sleeping."""
     import time
     from dataclasses import dataclass, field
 
@@ -184,6 +185,11 @@ def test_paced_cycles_start_at_their_ticks() -> None:
     assert len(verdicts) == 5 and len(stages["total"]) == 4 and len(first) == 2
     gaps = np.diff(paced.started)
     assert np.all(np.asarray(paced.started) - paced.started[0] >= np.arange(5) / 50.0 - 1e-3), gaps
+
+    def no_sleep(seconds: float) -> None:
+        raise AssertionError(f"slept {seconds} s")
+
+    monkeypatch.setattr(time, "sleep", no_sleep)
     spun = _Monitor()
     _time_walk(spun, inputs, 1, 0, None, False, pace=50.0, spin=True)  # type: ignore[arg-type]
     assert np.all(np.asarray(spun.started) - spun.started[0] >= np.arange(5) / 50.0 - 1e-3), np.diff(spun.started)

@@ -343,9 +343,10 @@ def _time_walk(
     spin: bool = False,
 ) -> tuple[dict[str, list[float]], list[float], list[Any]]:
     """The walk's cycles back to back (with ``pace`` [Hz], each started at its tick, the
-    thread sleeping until then, or with ``spin`` waiting in a busy loop): every stage's times [ms] after the ``warmup`` cycles, the
-    first two cycles' [ms] (the warm-up's effect) and the verdicts (only the last one with
-    its regions). With ``comparison``, OctoMap on the last ``peers`` cycles."""
+    thread sleeping until then, or with ``spin`` waiting in a busy loop): every stage's
+    times [ms] after the ``warmup`` cycles, the first two cycles' [ms] (the warm-up's
+    effect) and the verdicts (only the last one with its regions). With ``comparison``,
+    OctoMap on the last ``peers`` cycles."""
     n = len(inputs)
     stages: dict[str, list[float]] = {}
     first: list[float] = []
