@@ -307,9 +307,10 @@ class PlausibilityParams:
             component of the previous cycle.
         teleport: Remove components farther than ``human_speed_max * dt`` from every
             component of the previous cycle.
-        small_gaps: In image space, free the segments of pixel clusters too narrow to hide
-            an object of ``detection_size`` (dropout patches, flying and out-of-range
-            pixels walled in by pixels that read the static scene or the robot).
+        small_gaps: In image space, free the segments of pixel clusters without a reading
+            (dropout patches, out-of-range pixels) walled in by pixels that read the static
+            scene or the robot, as far as their rays are too narrow to hide an object of
+            ``detection_size`` (whole when they are at their far end).
         support_eps: Contact tolerance [m] of the flying rule.
         min_volume: Smallest volume [m^3] of a person part that can appear alone.
         shell_thickness: Thickness [m] of the noise shell around known objects.

@@ -79,6 +79,7 @@ from .engine.pieces import (
 from .engine.pixels import (
     PixelBuffers,
     classify_frame,
+    only_marked_segments,
     prepare_static,
     small_gap_pixels,
     tile_segments,
@@ -320,6 +321,7 @@ class Monitor:
         cell = self.cell
         self._blind = {c.name: np.full(c.shape, np.nan, dtype=np.float32) for c in cell.cameras}
         self._inf_img = {c.name: np.full(c.shape, np.inf, dtype=np.float32) for c in cell.cameras}
+        self._residue_mark = [np.zeros(c.shape, dtype=np.bool_) for c in cell.cameras]
 
         def shadow_memory(front: bool) -> ShadowMemory:
             return ShadowMemory(
@@ -899,9 +901,37 @@ class Monitor:
             lambda: judge_dynamic(
                 allp.vertices, vols, at_robot, ctx, lambda idx: pieces_manifold(allp.boxes[idx], self._stack),
                 memory=np.arange(len(allp)) >= n_pieces, pool=self._pool,
+                residue=self._residue(images, allp.boxes, n_pieces),
             ),
         )
         return result, ctx
+
+    def _residue(self, images: _Images, boxes: ArrayF64, n_pieces: int) -> np.ndarray:
+        """(N,) the carved pieces (the first ``n_pieces`` of ``boxes``) made only of the far
+        part of a small gap: pixels the small_gaps rule freed in part (their segments now
+        start where the cluster's rays widen to ``detection_size``)."""
+        out = np.zeros(len(boxes), dtype=bool)
+        gaps = images.gaps
+        if not len(gaps) or not n_pieces:
+            return out
+        cam = gaps[:, 0].astype(np.int64)
+        u, v = gaps[:, 1].astype(np.int64), gaps[:, 3].astype(np.int64)
+        for i in np.unique(cam):
+            sel = cam == i
+            ends = images.end[i][v[sel], u[sel]]
+            part = gaps[sel, 6] < ends
+            if not part.any():
+                continue
+            mark = self._residue_mark[i]
+            vi, ui = v[sel][part], u[sel][part]
+            mark[vi, ui] = True
+            try:
+                idx = np.nonzero(boxes[:n_pieces, 0] == i)[0]
+                rects = boxes[idx, 1:5].astype(np.int64)
+                out[idx] = only_marked_segments(rects, images.free[i], images.end[i], mark)
+            finally:
+                mark[vi, ui] = False
+        return out
 
     def _distance(
         self,
@@ -1012,17 +1042,15 @@ class Monitor:
         )
         gaps = np.zeros((0, 7))
         if cell.plausibility.small_gaps and depth is not None:
-            vu = small_gap_pixels(
+            vu, to = small_gap_pixels(
                 cls.free, cls.end, cls.invalid, s.free_static, cam.near,
                 cam.intrinsics.fx, cam.intrinsics.fy, cell.plausibility.detection_size,
                 tiles=(cell.reconstruction.tile, cls.tiles),
             )
             if len(vu):
                 v_idx, u_idx = vu[:, 0], vu[:, 1]
-                gaps = np.column_stack(
-                    [np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], cls.end[v_idx, u_idx]]
-                )
-                cls.free[v_idx, u_idx] = cls.end[v_idx, u_idx]
+                gaps = np.column_stack([np.full(len(u_idx), float(i)), u_idx, u_idx, v_idx, v_idx, cls.free[v_idx, u_idx], to])
+                cls.free[v_idx, u_idx] = to
         # (also without a frame: the pyramids must follow the images they are kept for)
         pyramids.update_camera(i, buffers.changed)
         end_pyramids.update_camera(i, buffers.end_changed)

@@ -1,6 +1,7 @@
 """The small_gaps rule frees only reading-less clusters walled in by readings of the static
-scene or of the robot and narrower than the detection capability (synthetic images, exact
-expectations, and a ball oracle in front of a wall and in front of the robot)."""
+scene or of the robot, and only where their rays are narrower than the detection capability
+(synthetic images, exact expectations, and a ball oracle in front of a wall and in front of
+the robot)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from polyhull.engine.pixels import small_gaps
+from polyhull.engine.pixels import only_marked_segments, small_gaps
 
 H, W = 60, 80
 F = 600.0  # focal length [px]
@@ -29,22 +30,40 @@ def _drop(free, invalid, v0, v1, u0, u1):  # noqa: ANN001, ANN202
 
 
 def _gaps(free, end, invalid, fs, size=SIZE):  # noqa: ANN001, ANN202
-    return small_gaps(free, end, invalid, fs, NEAR, F, F, size)
+    """The pixels the rule frees (wholly or in part)."""
+    return small_gaps(free, end, invalid, fs, NEAR, F, F, size) > free
+
+
+def _cut(ext_u: int, ext_v: int, size: float = SIZE) -> np.float32:
+    """Where a cluster of ``ext_u`` x ``ext_v`` px too wide at its far end is freed to: its
+    rays (with a pixel either side) widen to ``size`` at zcut; ``zcut - size``, as float32."""
+    lim = size * min(F / (ext_u + 2), F / (ext_v + 2)) - size
+    f = np.float32(lim)
+    return f if float(f) <= lim else np.nextafter(f, np.float32(0))
 
 
 def test_a_dropout_patch_in_the_static_scene_is_a_small_gap() -> None:
     free, end, invalid, fs = _scene()
     _drop(free, invalid, 20, 24, 30, 34)  # 4 x 4 px: (4 + 2) * 3.9 / 600 = 0.039 m
-    gap = _gaps(free, end, invalid, fs)
-    assert gap.sum() == 16 and gap[20:24, 30:34].all()
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, SIZE)
+    assert (new > free).sum() == 16 and (new[20:24, 30:34] == end[20:24, 30:34]).all()
 
 
-def test_a_patch_wider_than_the_detection_capability_stays() -> None:
+def test_a_patch_wider_than_the_detection_capability_is_freed_where_its_rays_are_narrower() -> None:
     free, end, invalid, fs = _scene()
     _drop(free, invalid, 20, 24, 30, 41)  # 11 px: (11 + 2) * 3.9 / 600 = 0.085 m > 0.07
-    assert not _gaps(free, end, invalid, fs).any()
-    # the same patch is small for a coarser declared capability
-    assert _gaps(free, end, invalid, fs, size=0.1).sum() == 44
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, SIZE)
+    # the rays are 0.07 m wide at 0.07 * 600 / 13 = 3.23 m: freed to 3.16 m, the rest stays
+    assert (new > free).sum() == 44
+    assert (new[20:24, 30:41] == _cut(11, 4)).all() and 3.16 < _cut(11, 4) < 3.161
+    assert (new[20:24, 30:41] < end[20:24, 30:41]).all()
+    # the same patch is small for a coarser declared capability: freed whole
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, 0.1)
+    assert (new[20:24, 30:41] == end[20:24, 30:41]).all()
+    # a capability so fine that zcut - size lies before the patch's free depth frees nothing
+    # (0.002 * 600 / 13 - 0.002 = 0.090 m < near, 0.1 m)
+    assert not _gaps(free, end, invalid, fs, size=0.002).any()
+    assert (small_gaps(free, end, invalid, fs, NEAR, F, F, 0.01)[20:24, 30:41] == _cut(11, 4, 0.01)).all()
 
 
 def test_valid_readings_are_never_filled() -> None:
@@ -60,12 +79,15 @@ def test_a_patch_walled_in_by_the_robot_is_a_small_gap() -> None:
     free, end, invalid, fs = _scene()
     end[17:27, 27:37] = free[17:27, 27:37] = 2.0  # the robot's surface, explained
     _drop(free, invalid, 20, 24, 30, 34)
-    gap = _gaps(free, end, invalid, fs)
-    assert gap.sum() == 16 and gap[20:24, 30:34].all()
-    # the segments' far end sets the width: at the wall's depth the same patch is too wide
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, SIZE)
+    assert (new > free).sum() == 16 and (new[20:24, 30:34] == 2.0).all()
+    # the segments' far end sets the width: at the wall's depth the same patch is too wide,
+    # and is freed only to where its rays are narrower than 0.035 m (3.5 m, less 0.035)
     end[20:24, 30:34] = fs[20:24, 30:34]
-    assert not _gaps(free, end, invalid, fs, size=0.035).any()
-    assert _gaps(free, end, invalid, fs, size=0.04).sum() == 16
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, 0.035)
+    assert (new[20:24, 30:34] == _cut(4, 4, 0.035)).all() and _cut(4, 4, 0.035) < end[20, 30]
+    new = small_gaps(free, end, invalid, fs, NEAR, F, F, 0.04)
+    assert (new[20:24, 30:34] == end[20:24, 30:34]).all()
 
 
 @pytest.mark.parametrize("where", ["person", "person at the robot", "robot colour", "blind", "border"])
@@ -91,12 +113,13 @@ def test_a_patch_next_to_anything_but_the_static_scene_or_the_robot_stays(where:
 
 
 def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: ANN001, ANN202
-    """The rule written plainly with scipy.ndimage.label (the oracle of the compiled pass)."""
+    """The rule written plainly with scipy.ndimage.label (the oracle of the compiled pass):
+    the free depth after it."""
     from scipy import ndimage
 
     mask = (free < end) & invalid
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
-    out = np.zeros(mask.shape, dtype=bool)
+    out = free.copy()
     H, W = mask.shape
     for k in range(1, n + 1):
         vs, us = np.nonzero(labels == k)
@@ -106,16 +129,23 @@ def _reference_small_gaps(free, end, invalid, fs, near, fx, fy, size):  # noqa: 
         static = (f64 > near) & (free[ring] >= fs[ring])
         robot = ~invalid[ring] & (free[ring].astype(np.float64) > near) & (free[ring] >= end[ring])
         closed = not touches_border and (static | robot).all()
+        if not closed:
+            continue
         zmax = float(end[vs, us].astype(np.float64).max())
-        if closed and (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
-            out[vs, us] = True
+        if (np.ptp(us) + 3) * zmax / fx < size and (np.ptp(vs) + 3) * zmax / fy < size:
+            out[vs, us] = end[vs, us]
+            continue
+        lim = size * min(fx / (np.ptp(us) + 3), fy / (np.ptp(vs) + 3)) - size
+        f = np.float32(lim)
+        f = f if float(f) <= lim else np.nextafter(f, np.float32(0))  # rounded toward the camera
+        out[vs, us] = np.maximum(free[vs, us], np.minimum(end[vs, us], f))
     return out
 
 
 @settings(max_examples=60, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_small_gaps_match_the_plain_rule(seed: int) -> None:
-    """The compiled cluster pass marks exactly what the rule written with ndimage marks."""
+    """The compiled cluster pass frees exactly what the rule written with ndimage frees."""
     rng = np.random.default_rng(seed)
     H, W = (int(x) for x in rng.integers(3, 30, size=2))
     fs = rng.uniform(0.5, 5, size=(H, W)).astype(np.float32)
@@ -190,7 +220,7 @@ def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int, on
     invalid = np.zeros((BALL_H, BALL_W), dtype=bool)
     free[v0 : v0 + ph, u0 : u0 + pw] = NEAR
     invalid[v0 : v0 + ph, u0 : u0 + pw] = True
-    got = np.where(small_gaps(free, end, invalid, fs, NEAR, BALL_F, BALL_F, size), end, free)
+    got = small_gaps(free, end, invalid, fs, NEAR, BALL_F, BALL_F, size)
     # the ball's points (a shell and its interior), projected to their pixels
     x = rng.normal(size=(4000, 3))
     x = centre + r * x / np.linalg.norm(x, axis=1, keepdims=True) * rng.uniform(0, 1, size=(4000, 1)) ** (1 / 3)
@@ -200,3 +230,20 @@ def _ball_in_a_patch(rng: np.random.Generator, size: float, ph: int, pw: int, on
     vi, ui = v[inside], u[inside]
     lost = (x[inside, 2] < got[vi, ui]) & (got[vi, ui] > free[vi, ui])
     assert not lost.any(), f"{int(lost.sum())} ball points freed (patch {ph}x{pw} at {v0},{u0}, z {zc:.2f})"
+
+
+def test_residue_pieces_are_those_whose_segment_pixels_are_all_marked() -> None:
+    """:func:`only_marked_segments` (which carved pieces are only a small gap's far part)
+    against a plain loop, on random images: a rectangle with an unmarked segment pixel, or
+    none, is not residue."""
+    rng = np.random.default_rng(3)
+    free = rng.uniform(1, 2, size=(20, 30)).astype(np.float32)
+    end = np.where(rng.random((20, 30)) < 0.5, free + 1, free).astype(np.float32)
+    mark = rng.random((20, 30)) < 0.7
+    u0, v0 = rng.integers(0, 30, 200), rng.integers(0, 20, 200)
+    rects = np.column_stack([u0, np.minimum(u0 + rng.integers(0, 4, 200), 29), v0, np.minimum(v0 + rng.integers(0, 4, 200), 19)])
+    got = only_marked_segments(rects, free, end, mark)
+    for r, g in zip(rects, got, strict=True):
+        seg = (free < end)[r[2] : r[3] + 1, r[0] : r[1] + 1]
+        assert g == (seg.any() and mark[r[2] : r[3] + 1, r[0] : r[1] + 1][seg].all())
+    assert got.any() and not got.all()

@@ -38,7 +38,8 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
 5. ``teleport``: farther than ``human_speed_max * dt`` from every component of the previous
    cycle, and touching neither the boundary, an entry area nor M.
 
-A kept component keeps the **noise sheet under it**: for every kept piece that crosses the
+A kept component keeps the **noise sheet under it** (unless it holds no reading: made only
+of the far part of small gaps, see :func:`judge_dynamic`): for every kept piece that crosses the
 top of a sheet (floor, obstacle face), a box over the piece's footprint on that face, grown
 by ``floor_shell_margin``, as high as C_static reaches in the sheet's slab there (its height
 map, measured at precompute): a standing person's legs cross the top of
@@ -485,13 +486,19 @@ def judge_dynamic(
     make_mesh,  # noqa: ANN001 - (indices) -> manifold3d.Manifold, called lazily
     memory: np.ndarray | None = None,
     pool: Executor | None = None,
+    residue: np.ndarray | None = None,
 ) -> DynamicResult:
     """Apply the dynamic rules to pieces with vertices (N, 8, 3) [m], volumes (N,) [m^3]
     and ``at_robot`` (N,) (the piece ends at the robot's shadow start). ``memory`` (N,)
     marks the shadow memory's pieces: they are judged like the others but add no sheet
-    boxes (they are the robot's hidden space, not something seen standing there). With a
-    ``pool``, the components' sweep and the per-piece tests run on this thread and one of
-    its threads."""
+    boxes (they are the robot's hidden space, not something seen standing there).
+    ``residue`` (N,) marks pieces made only of the far part of a small gap (the rays of a
+    reading-less pixel cluster beyond the depth where they widen to ``detection_size``,
+    :func:`polyhull.engine.pixels.small_gaps`): a component of such pieces alone holds no
+    reading, so it is judged like the others but keeps no sheet under it and seeds no
+    memory (a hand-sized object the dropout may hide is not a person seen standing there;
+    a person beside it shows readings, whose pieces keep the sheets). With a ``pool``, the
+    components' sweep and the per-piece tests run on this thread and one of its threads."""
     n = vertices.shape[0]
     if n == 0:
         none = np.zeros(0, bool)
@@ -584,6 +591,9 @@ def judge_dynamic(
     own = keep & ~(small | ~supported)[labels]
     if memory is not None:
         own &= ~memory
+    if residue is not None and residue.any():
+        seen = np.bincount(labels, weights=(~residue & ~shell_cut).astype(np.float64), minlength=K) > 0
+        own &= seen[labels]
     # Seeds of the next cycle's shadow memory: what was seen as a target, standing on a
     # surface or coming in over the boundary, not what M alone or R3_static spared.
     # Pieces inside a shell or a noise sheet are left out: feet in the floor's sheet lie

@@ -52,6 +52,7 @@ __all__ = [
     "memory_segments",
     "box_rects",
     "small_gaps",
+    "only_marked_segments",
     "window_range",
 ]
 
@@ -636,10 +637,11 @@ def classify_frame(
 
 @nb.njit(cache=True, nogil=True)
 def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pragma: no cover - compiled
-    """(G, 2) the pixels (v, u) of the 8-connected clusters of segment pixels without a reading
-    (``free < end`` and ``invalid``) that are small gaps (see :func:`small_gaps`): one
-    pass over the marked ``tiles`` (edge ``tile`` px; segment pixels lie only in them), each
-    cluster followed from its first pixel (:func:`_gap_cluster`)."""
+    """(G, 3) rows (v, u, new free depth) of the pixels of the 8-connected clusters of
+    segment pixels without a reading (``free < end`` and ``invalid``) whose segments
+    :func:`small_gaps` frees, wholly or in part: one pass over the marked ``tiles`` (edge
+    ``tile`` px; segment pixels lie only in them), each cluster followed from its first pixel
+    (:func:`_gap_cluster`)."""
     H, W = free.shape
     # the candidates first (a tight scan into an array that never grows: an array
     # reassigned in the loop costs reference counting per pixel), then their clusters
@@ -663,7 +665,7 @@ def _small_gaps(free, end, invalid, fs, near, fx, fy, size, tile, tiles):  # pra
     seen = np.zeros((H, W), dtype=np.bool_)
     stack = np.empty((64, 2), dtype=np.int64)
     comp = np.empty((64, 2), dtype=np.int64)
-    out = np.empty((64, 2), dtype=np.int64)
+    out = np.empty((64, 3), dtype=np.float64)
     n_out = 0
     for c in range(nc):
         v, u = cand[c, 0], cand[c, 1]
@@ -710,9 +712,19 @@ def _gap_cluster(v, u, free, end, invalid, fs, near, fx, fy, size, seen, stack, 
                         ns += 1
                 elif not _explained(free[qv, qu], end[qv, qu], fs[qv, qu], invalid[qv, qu], near):
                     closed = False
-    if closed and (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size:
-        for c in range(nc):
-            out = push_row(out, n_out, (comp[c, 0], comp[c, 1]))
+    if not closed:
+        return stack, comp, out, n_out
+    # nearer than zcut the cluster's rays are narrower than ``size`` on one image axis at
+    # least; an object of that cross-section lies beyond zcut - size / 2 (its widest
+    # section is where it fits, its points within half its size of it): free to zcut - size
+    zcut = size * min(fx / (u1 - u0 + 3), fy / (v1 - v0 + 3))
+    whole = (u1 - u0 + 3) * zmax / fx < size and (v1 - v0 + 3) * zmax / fy < size
+    lim = down32(zcut - size)
+    for c in range(nc):
+        pv, pu = comp[c, 0], comp[c, 1]
+        to = end[pv, pu] if whole else min(end[pv, pu], lim)
+        if to > free[pv, pu]:
+            out = push_row(out, n_out, (np.float64(pv), np.float64(pu), np.float64(to)))
             n_out += 1
     return stack, comp, out, n_out
 
@@ -728,9 +740,9 @@ def _explained(free, end, fs, invalid, near):  # pragma: no cover - compiled
 
 def small_gaps(
     free: ArrayF32, end: ArrayF32, invalid: np.ndarray, free_static: ArrayF32, near: float, fx: float, fy: float, size: float
-) -> np.ndarray:
-    """(H, W) the pixels without a reading whose segments are too narrow to hide an object
-    of ``size`` [m].
+) -> ArrayF32:
+    """(H, W) the free depth once the segments of pixels without a reading are freed where
+    they are too narrow to hide an object of ``size`` [m] (float32; ``free`` elsewhere).
 
     Only pixels with no usable reading (dropouts, out of range) are candidates: a valid
     reading in front of the background is an observation (a hand seen through a gap) and
@@ -739,17 +751,26 @@ def small_gaps(
     free depth) or the robot (a valid reading explained by the padded robot: free to its
     shadow start, no segment), an object in the cluster's segments is walled in by free
     pixel footprints, or reaches beyond them only into the static region or the robot's
-    shadow behind them: its cross-section in the cluster's rays is under ``(extent + 2) px
-    * z / f`` at the cluster's farthest segment end z (on the robot's image, its shadow
-    start: the segments never run behind it). When that is under ``size`` on both image
-    axes, the cluster cannot hide an object the system is declared to detect (its
-    detection capability) that shows no reading at all: a dropout patch, out-of-range
-    pixels. Clusters at the image border, next to pixels that see nothing, or next to a
-    person or a flying pixel (a reading with a segment), are never small gaps.
+    shadow behind them: its cross-section in the cluster's rays at z-depth z is under
+    ``(extent + 2) px * z / f``. Where that is under ``size`` on both image axes, the
+    cluster cannot hide an object the system is declared to detect (its detection
+    capability) that shows no reading at all: a dropout patch, out-of-range pixels.
+
+    - When it is under ``size`` at the cluster's farthest segment end (on the robot's
+      image, its shadow start: the segments never run behind it), the cluster's segments
+      are freed whole.
+    - Otherwise the rays widen to ``size`` at ``zcut``: an object of that cross-section
+      has its widest section beyond ``zcut`` and every point within half its size of that
+      section, so the segments are freed up to ``zcut - size`` (half a size to spare), and
+      their far part stays. A patch at 6.6 m (a camera across the cell) then keeps only its
+      last decimetres instead of a column through the cell's middle.
+
+    Clusters at the image border, next to pixels that see nothing, or next to a person or
+    a flying pixel (a reading with a segment), are never freed.
     """
-    out = np.zeros(free.shape, dtype=bool)
-    vu = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
-    out[vu[:, 0], vu[:, 1]] = True
+    out = free.copy()
+    vu, to = small_gap_pixels(free, end, invalid, free_static, near, fx, fy, size)
+    out[vu[:, 0], vu[:, 1]] = to
     return out
 
 
@@ -763,15 +784,44 @@ def small_gap_pixels(
     fy: float,
     size: float,
     tiles: tuple[int, np.ndarray] | None = None,
-) -> np.ndarray:
-    """(G, 2) the (v, u) pixels of :func:`small_gaps` (without an image-sized mask).
+) -> tuple[np.ndarray, ArrayF32]:
+    """The pixels :func:`small_gaps` frees (without an image-sized mask): (G, 2) their
+    (v, u) and (G,) their new free depth (float32, above ``free``, at most ``end``).
     ``tiles``: (edge [px], grid) the tiles that may hold a segment pixel
     (:attr:`PixelClasses.tiles`), the only ones visited; None: all."""
     if tiles is None:
         tile, grid = 1 << 30, np.ones((1, 1), dtype=np.bool_)
     else:
         tile, grid = int(tiles[0]), tiles[1]
-    return _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), tile, grid)
+    rows = _small_gaps(free, end, invalid, free_static, float(near), float(fx), float(fy), float(size), tile, grid)
+    return rows[:, :2].astype(np.int64), rows[:, 2].astype(np.float32)
+
+
+@nb.njit(cache=True, nogil=True)
+def _only_marked(rects, free, end, mark, out):  # pragma: no cover - compiled
+    for k in range(rects.shape[0]):
+        seg = False
+        ok = True
+        for v in range(rects[k, 2], rects[k, 3] + 1):
+            for u in range(rects[k, 0], rects[k, 1] + 1):
+                if free[v, u] < end[v, u]:
+                    seg = True
+                    if not mark[v, u]:
+                        ok = False
+                        break
+            if not ok:
+                break
+        out[k] = ok and seg
+
+
+def only_marked_segments(rects: np.ndarray, free: ArrayF32, end: ArrayF32, mark: np.ndarray) -> np.ndarray:
+    """(N,) whether every segment pixel (``free < end``) in each pixel rectangle ``rects``
+    (N, 4): u0, u1, v0, v1 (inclusive, inside the image) is ``mark``-ed, and there is one:
+    e.g. pieces made only of the far part of :func:`small_gaps`' clusters."""
+    out = np.zeros(len(rects), dtype=np.bool_)
+    if len(rects):
+        _only_marked(np.ascontiguousarray(rects, dtype=np.int64), free, end, mark, out)
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
