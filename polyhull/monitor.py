@@ -91,6 +91,7 @@ from .engine.refine import (
     MEMORY,
     OWN,
     REACH_EXTRA,
+    RESIDUE,
     SPARED,
     Refined,
     RegionRules,
@@ -684,6 +685,7 @@ class Monitor:
             pieces_parts=(allp, PieceSet(gap_boxes, gap_verts)),
             kept_pieces=refined.pieces.vertices,
             kept_boxes=refined.pieces.boxes,
+            kept_residue=(refined.flags & RESIDUE) > 0,
             stack=self._stack,
             sheet_boxes=refined.sheets,
             robot_body=lambda: _robot_body(padded_world),
@@ -952,6 +954,7 @@ class Monitor:
             | np.where(index >= n_pieces, MEMORY, 0)
             | np.where(index >= len(allp) - n_front, FRONT, 0)
             | np.where(result.spared, SPARED, 0)
+            | np.where(result.residue, RESIDUE, 0)
         )[result.keep].astype(np.int8)
         static_now = carving.static_now
 

@@ -93,6 +93,7 @@ class CycleGeometry:
     pieces_parts: tuple[PieceSet, ...]  # all dynamic pieces before the rules (with memory)
     kept_pieces: ArrayF64  # (K, 8, 3) kept dynamic pieces
     kept_boxes: ArrayF64  # (K, 7) the same in their cameras' image space
+    kept_residue: np.ndarray  # (K,) made only of a small gap's far part (no reading)
     stack: CameraStack  # the cameras, for the pieces' vertices
     sheet_boxes: ArrayF64  # (S, 8, 3) the sheet boxes under them
     robot_body: Callable[[], m3.Manifold]
@@ -128,16 +129,16 @@ class CycleGeometry:
         third as many pieces)."""
         return merge_adjacent(self.kept_boxes)
 
-    @functools.cached_property
-    def merged_pieces(self) -> ArrayF64:
-        """(M, 8, 3) the world vertices of :attr:`merged_boxes`."""
-        return piece_vertices(self.merged_boxes, self.stack)
+    def merged_pieces(self, unseen: bool = False) -> ArrayF64:
+        """(M, 8, 3) the kept pieces with a reading (``unseen`` False) or those made only
+        of a small gap's far part (True), siblings merged, as world vertices."""
+        return piece_vertices(merge_adjacent(self.kept_boxes[self.kept_residue == unseen]), self.stack)
 
-    def drawn_pieces(self) -> ArrayF64:
-        """(D, 8, 3) the merged kept pieces that add to the static region's drawing: not
-        those whose corners (moved 2 % toward the piece's centre, off the surfaces pieces
-        end on) all lie in C_static."""
-        pieces = self.merged_pieces
+    def drawn_pieces(self, unseen: bool = False) -> ArrayF64:
+        """(D, 8, 3) the merged kept pieces (:meth:`merged_pieces`) that add to the static
+        region's drawing: not those whose corners (moved 2 % toward the piece's centre, off
+        the surfaces pieces end on) all lie in C_static."""
+        pieces = self.merged_pieces(unseen)
         if len(pieces) == 0:
             return pieces
         centre = pieces.mean(axis=1, keepdims=True)
@@ -145,9 +146,13 @@ class CycleGeometry:
         inside = self.static.hull_contains(corners.reshape(-1, 3), self.k_of_n).reshape(-1, 8).all(axis=1)
         return pieces[~inside]
 
+    def unseen_drawing(self) -> tuple[ArrayF64, np.ndarray]:
+        """Triangles of the kept small gaps' residue (see :meth:`Verdict.region_unseen_drawing`)."""
+        return hexahedra_triangles(self.drawn_pieces(unseen=True))
+
     def drawing(self) -> tuple[ArrayF64, np.ndarray]:
-        """Triangles of the dynamic region without its union (see
-        :meth:`Verdict.region_dynamic_drawing`)."""
+        """Triangles of the dynamic region without its union and without the small gaps'
+        residue (see :meth:`Verdict.region_dynamic_drawing`)."""
         pieces = self.drawn_pieces()
         pv, faces = hexahedra_triangles(pieces)
         sheets = self.get("sheets_added").to_mesh64()
@@ -268,10 +273,22 @@ class Verdict:
         static hull C_static, then the sheets' exact part outside the static region. A
         drawing, not a set: a piece partly in the static region is drawn whole, and one
         wholly in C_static where the static rules removed a noise sheet is not drawn (the
-        sheet kept under it is). Empty without geometry (a stop verdict)."""
+        sheet kept under it is). The pieces made only of a small gap's far part are drawn
+        apart (:meth:`region_unseen_drawing`); together the two are the drawing of
+        :attr:`region_dynamic`. Empty without geometry (a stop verdict)."""
         if self._geometry is None:
             return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
         return self._geometry.drawing()
+
+    def region_unseen_drawing(self) -> tuple[ArrayF64, np.ndarray]:
+        """The kept pieces that hold no reading, as triangles (as
+        :meth:`region_dynamic_drawing`): the far part of a dropout patch's rays (or of
+        out-of-range pixels), where an object of ``plausibility.detection_size`` may hide
+        unseen by that camera (the small_gaps rule freed the rest). For viewers, to tell
+        them from what a camera saw. Empty without geometry."""
+        if self._geometry is None:
+            return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+        return self._geometry.unseen_drawing()
 
     @property
     def region_r1(self) -> m3.Manifold:

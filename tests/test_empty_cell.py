@@ -244,5 +244,10 @@ def test_dropout_residue_keeps_no_sheet(paper: tuple[Monitor, Simulator], monkey
     monitor.reset()
     assert not v.faults, v.faults
     assert flagged[0] > 0
+    # the residue reaches the verdict's pieces (through refinement) and its own drawing
+    g = v._geometry
+    assert g is not None and g.kept_residue.any()
+    _, faces = v.region_unseen_drawing()
+    assert len(faces) == 12 * len(g.drawn_pieces(unseen=True)) > 0
     assert static - v.min_distance < 0.1, (v.min_distance, static)
     assert static - hung.min_distance > 0.2, (hung.min_distance, static)

@@ -325,7 +325,7 @@ def test_the_dynamic_region_drawing_is_what_the_cycle_adds(small_cell, small_sim
     assert g is not None
     vertices, faces = v.region_dynamic_drawing()
     assert faces.shape[1] == 3 and faces.min() >= 0 and faces.max() < len(vertices)
-    drawn, merged = g.drawn_pieces(), g.merged_pieces
+    drawn, merged = g.drawn_pieces(), g.merged_pieces()
     assert 0 < len(drawn) <= len(merged)
     np.testing.assert_array_equal(vertices[: 8 * len(drawn)], drawn.reshape(-1, 3))
     head = faces[: 12 * len(drawn)]

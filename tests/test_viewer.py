@@ -900,6 +900,46 @@ def test_draw_verdict_draws_the_verdicts_fast_drawing_given_the_static_region() 
     assert whole[:, 0].max() == pytest.approx(3.5, abs=1e-6)  # the static box is part of it
 
 
+@dataclass(frozen=True)
+class _UnseenVerdict(_DrawingVerdict):
+    """The monitor's verdict also draws its pieces that hold no reading apart."""
+
+    unseen: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+
+    def region_unseen_drawing(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.unseen
+
+
+def test_pieces_without_a_reading_are_drawn_paler_and_with_the_region_in_the_demo(cell: Cell) -> None:
+    """``region_unseen_drawing()`` (a dropout's rays) goes to ``regions/unseen`` in the
+    style's paler colour, apart from the dynamic region's saturated one; the demo's
+    animation draws both as the cycle's region; with nothing unseen the path is deleted."""
+    seen_box, unseen_box = _box([1.0, 1.0, 0.0], [0.4, 0.4, 1.0]), _box([2.0, 2.0, 0.2], [0.05, 0.05, 0.3])
+    (sv, sf), (uv, uf) = (
+        (np.asarray(b.to_mesh().vert_properties)[:, :3], np.asarray(b.to_mesh().tri_verts)) for b in (seen_box, unseen_box)
+    )
+    static = _box([3.0, 3.0, 0.0], [0.5, 0.5, 0.3])
+    base = _verdict(region=seen_box + unseen_box + static)
+    fields = {f: getattr(base, f) for f in base.__dataclass_fields__}
+    fields["region_dynamic"] = None
+    verdict = _UnseenVerdict(**fields, drawing=(sv, sf), unseen=(uv, uf))
+    vis = pv.StaticVisualizer()
+    pv.draw_verdict(vis, _NoUnion(verdict), static_region=static)
+    unseen = _json(vis, "/polyhull/regions/unseen")
+    drawn = _decode(unseen["geometries"][0]["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3)
+    np.testing.assert_allclose(drawn, uv.astype(np.float32))
+    colour = unseen["materials"][0]["color"]
+    assert colour == pv.STYLE.region_unseen != pv.STYLE.region == _json(vis, "/polyhull/regions/dynamic")["materials"][0]["color"]
+    pv.draw_verdict(vis, _NoUnion(_UnseenVerdict(**fields, drawing=(sv, sf))), static_region=static)
+    assert "/polyhull/regions/unseen" not in vis.object_paths()
+    recorder = pv.DemoRecorder(cell, robot=FakeRobot(), static_region=static)
+    for k in range(2):
+        recorder.add_cycle(0.5 * k, [0.1 * k, 0.0], [], verdict)
+    geometry = _json(recorder.build(), "/polyhull/anim/region/1")["geometries"][0]
+    drawn = _decode(geometry["data"]["attributes"]["position"]["array"], np.float32).reshape(-1, 3)
+    np.testing.assert_allclose(drawn, np.concatenate([sv, uv]).astype(np.float32))
+
+
 def test_removed_components_of_pieces_are_drawn_from_their_pieces() -> None:
     """A removed component made of pieces (the monitor's) is drawn from its hexahedra as they
     are, without building its union; one given as a manifold, from the manifold."""

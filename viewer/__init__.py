@@ -9,7 +9,8 @@ Draw into your own meshcat visualizer from your controller code::
     pv.draw_cell(vis, cell, q)              # zone, obstacles, robot, camera frustums
     verdict = monitor.step(frames, q, stamp=t)
     pv.draw_verdict(vis, verdict, robot=robot, static_region=monitor.static.region)
-                                            # R (dynamic saturated, static faint), M, C,
+                                            # R (dynamic saturated, a dropout's rays pale,
+                                            # static faint), M, C,
                                             # removed parts (hidden), distance and label;
                                             # every cycle: hull=False, occlusion=False
                                             # (C and M are manifold booleans: seconds)

@@ -50,6 +50,9 @@ class Style:
         robot_occlusion_opacity: Opacity of M.
         region: The dynamic region (this cycle's part of R: people, new objects), saturated.
         region_opacity: Opacity of the dynamic region.
+        region_unseen: The dynamic region's pieces that hold no reading (the far part of a
+            dropout patch's rays, where a small object may hide), a paler red.
+        region_unseen_opacity: Opacity of those pieces.
         static_region: The static region (blind space, static shadows), a faint tint.
         static_region_opacity: Opacity of the static region.
         static_margin: The static region is shown (by default) within this distance [m]
@@ -80,6 +83,8 @@ class Style:
     robot_occlusion_opacity: float = 0.3
     region: int = 0xE0102F
     region_opacity: float = 0.8
+    region_unseen: int = 0xF09AA6
+    region_unseen_opacity: float = 0.55
     static_region: int = 0xB06070
     static_region_opacity: float = 0.12
     static_margin: float = 1.0

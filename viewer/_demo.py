@@ -181,7 +181,8 @@ class DemoRecorder:
             q: Joint positions [rad] of the robot in this cycle.
             person_meshes: The people (or other targets) in the world frame.
             verdict: The monitor's verdict of this cycle; what it adds to the static
-                region is drawn: ``region_dynamic_drawing()`` when it has one (the
+                region is drawn: ``region_dynamic_drawing()`` (and
+                ``region_unseen_drawing()``) when it has one (the
                 monitor's :class:`polyhull.verdict.Verdict`: its kept pieces as they are,
                 not united, in milliseconds where the union of thousands of pieces near the
                 robot takes seconds), else ``region_dynamic`` minus ``static_region``, else
@@ -212,6 +213,10 @@ class DemoRecorder:
         drawing = getattr(verdict, "region_dynamic_drawing", None)
         if callable(drawing):
             v, f = drawing()
+            unseen = getattr(verdict, "region_unseen_drawing", None)
+            if callable(unseen):  # drawn with it here: one region a cycle in the animation
+                uv, uf = unseen()
+                v, f = np.concatenate([v, uv]), np.concatenate([f, np.asarray(uf) + len(v)])
             region_arrays = (
                 np.ascontiguousarray(np.asarray(v, dtype=np.float32).reshape(-1, 3)),
                 np.ascontiguousarray(np.asarray(f, dtype=np.uint32).reshape(-1, 3)),

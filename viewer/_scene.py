@@ -439,7 +439,9 @@ def draw_verdict(
     The dynamic region (people, new objects) is drawn in a saturated colour: given
     ``static_region``, a verdict with ``region_dynamic_drawing()`` (the monitor's) is drawn
     from those triangles, its kept pieces as they are (milliseconds; the union of thousands
-    of pieces as ``region_dynamic`` takes seconds), else ``region_dynamic`` minus
+    of pieces as ``region_dynamic`` takes seconds), with its pieces that hold no reading
+    (``region_unseen_drawing()``: the far part of a dropout patch's rays) paler, under
+    ``regions/unseen``; else ``region_dynamic`` minus
     ``static_region``, else ``region_dynamic``; the static region
     (``static_region``, or ``region`` minus ``region_dynamic``) as a faint tint near the
     robot and hidden beyond; together they are all of ``region``. M, C and the
@@ -470,6 +472,10 @@ def draw_verdict(
         # of thousands of pieces: milliseconds where the manifold takes seconds).
         vertices, faces = drawing()
         draw_triangles(regions["dynamic"], vertices, faces, style.region, style.region_opacity)
+        unseen = getattr(verdict, "region_unseen_drawing", None)
+        if callable(unseen):  # the pieces no camera read: a dropout's rays, paler
+            vertices, faces = unseen()
+            draw_triangles(regions["unseen"], vertices, faces, style.region_unseen, style.region_unseen_opacity)
         static = static_region
     else:
         dynamic = getattr(verdict, "region_dynamic", None)  # a property: built when read

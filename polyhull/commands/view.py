@@ -5,8 +5,9 @@ server) and the command exits. Without it, a meshcat server starts, its URL is p
 the command serves until Ctrl-C, then stops the server. It never waits for a browser.
 
 With ``--frames`` the recorded frames are drawn as point clouds (hidden at first), and the
-monitor runs one cycle on them: the region R (its dynamic part saturated, its static part
-faint near the robot), the closest-distance segment and its label are shown; the cameras'
+monitor runs one cycle on them: the region R (its dynamic part saturated, the part no
+camera read, a dropout patch's rays, pale, its static part faint near the robot), the
+closest-distance segment and its label are shown; the cameras'
 regions C(i), the hull C, the robot occlusion M and the removed components are drawn
 hidden, each switched on in meshcat's controls.
 
@@ -40,8 +41,9 @@ def register(subparsers: Any) -> None:
         help="inspect a cell, its frames and the monitor's regions in meshcat",
         description=(
             "Draw a cell (zone, obstacles, robot, camera frustums) in meshcat. With --frames, "
-            "also run the monitor once: the region R (what moved in a saturated red, the "
-            "static blind space as a faint tint near the robot) and the closest distance are "
+            "also run the monitor once: the region R (what moved in a saturated red, a "
+            "dropout patch's rays no camera read in pale pink, the static blind space as a "
+            "faint tint near the robot) and the closest distance are "
             "shown; the point clouds, C(i), C, M and the removed parts are drawn hidden "
             "(toggle them in meshcat's 'Open Controls'). With --html, write a standalone "
             "HTML file and exit; otherwise serve the scene until Ctrl-C."

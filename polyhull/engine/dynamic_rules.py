@@ -215,6 +215,7 @@ class DynamicResult:
         legs: (L, 8, 3) boxes standing for the legs the robot may hide under the kept
             components that touch M (:func:`hidden_legs`): the floor's sheet is kept
             under them (:func:`sheets_under`), where the feet are.
+        residue: (N,) the pieces made only of the far part of a small gap (as given).
     """
 
     keep: np.ndarray
@@ -225,6 +226,7 @@ class DynamicResult:
     removed: tuple[RemovedComponent, ...]
     seeds: np.ndarray
     legs: ArrayF64
+    residue: np.ndarray
 
 
 def _box_gap(lo: ArrayF64, hi: ArrayF64, blo: ArrayF64, bhi: ArrayF64) -> ArrayF64:
@@ -502,7 +504,7 @@ def judge_dynamic(
     n = vertices.shape[0]
     if n == 0:
         none = np.zeros(0, bool)
-        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), none, np.zeros((0, 8, 3)))
+        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), none, np.zeros((0, 8, 3)), none)
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
@@ -591,7 +593,9 @@ def judge_dynamic(
     own = keep & ~(small | ~supported)[labels]
     if memory is not None:
         own &= ~memory
-    if residue is not None and residue.any():
+    if residue is None:
+        residue = np.zeros(n, dtype=bool)
+    elif residue.any():
         seen = np.bincount(labels, weights=(~residue & ~shell_cut).astype(np.float64), minlength=K) > 0
         own &= seen[labels]
     # Seeds of the next cycle's shadow memory: what was seen as a target, standing on a
@@ -600,7 +604,7 @@ def judge_dynamic(
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
     legs = hidden_legs(lo, hi, own & touch_m[labels], ctx) if p.too_thin else np.zeros((0, 8, 3))
-    return DynamicResult(keep, labels, own, spared, inside, removed, seeds, legs)
+    return DynamicResult(keep, labels, own, spared, inside, removed, seeds, legs, residue)
 
 
 class _Components(NamedTuple):

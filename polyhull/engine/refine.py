@@ -59,6 +59,7 @@ __all__ = [
     "OWN",
     "FRONT_SLACK",
     "REACH_EXTRA",
+    "RESIDUE",
     "ROUNDS",
     "SETTLED",
     "SPARED",
@@ -138,6 +139,9 @@ size budget): not carved again this cycle."""
 FRONT = 16
 """Flag (with ``MEMORY``): the piece is of the memory's part in front of the robot (a colour
 camera's, carved with those segments)."""
+RESIDUE = 32
+"""Flag: the piece is made only of the far part of a small gap (no reading behind it; see
+:func:`polyhull.engine.pixels.small_gaps`)."""
 
 
 def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -186,6 +190,7 @@ class Refined(NamedTuple):
         sheets: (S, 8, 3) the sheet boxes under the kept pieces that stand on a surface.
         distance: The distance result of ``measure`` for the pieces and sheets.
         rounds: Carving rounds run.
+        flags: (K,) the flags of :attr:`pieces` (a carved piece has its parent's).
     """
 
     pieces: PieceSet
@@ -193,6 +198,7 @@ class Refined(NamedTuple):
     sheets: ArrayF64
     distance: Any
     rounds: int
+    flags: np.ndarray
 
 
 Recarve = Callable[[np.ndarray, int, float, float, float], PieceSet]
@@ -270,7 +276,7 @@ def refine_kept(
         sheets, result = region(all_, None)
         # nothing to refine, or contact already (the cycle stops whatever the finer pieces say)
         if len(kept) == 0 or len(spheres) == 0 or not (0.0 < float(result.distance) < np.inf):
-            return Refined(kept, kept.select(cut), sheets, result, rounds)
+            return Refined(kept, kept.select(cut), sheets, result, rounds, flags)
         front0 = float(result.distance)
     # Only the pieces within ``reach`` (and a margin) of the first frontier take part in
     # the rounds; the rest keep their sheets and their distance (measured once).
@@ -338,4 +344,4 @@ def refine_kept(
         front = float(result.distance)
     if result is None:  # nothing to refine from the hinted frontier
         sheets, result = final()
-    return Refined(kept.select(~cut), kept.select(cut), sheets, result, rounds)
+    return Refined(kept.select(~cut), kept.select(cut), sheets, result, rounds, flags[~cut])
