@@ -9,8 +9,10 @@ import sys
 import textwrap
 
 import numpy as np
+import pytest
 
 from polyhull.cell import Cell
+from polyhull.cellfile import default_cell_path
 from polyhull.commands.demo import robot_motion
 from polyhull.engine.warmup import warmup_frames
 from polyhull.monitor import Monitor
@@ -22,7 +24,8 @@ DT = 0.1
 
 def _inputs(cell: Cell, sim: Simulator, robot: object) -> list:  # type: ignore[type-arg]
     """Six cycles: a person walking past the robot (default sensor effects), then three of
-    the empty cell as uint16 millimetres."""
+    the empty cell as uint16 millimetres, the last with 12 px dropout patches (too wide to
+    free whole at this cell's depths: the small gaps' residue and its test)."""
     q0 = np.asarray(cell.robot.q, dtype=np.float64)  # type: ignore[union-attr]
     base = np.asarray(cell.robot.base[:2], dtype=np.float64)  # type: ignore[union-attr]
     out = []
@@ -33,7 +36,8 @@ def _inputs(cell: Cell, sim: Simulator, robot: object) -> list:  # type: ignore[
             person = make_person(pose="walking", position=tuple(base - [1.0, 1.05 - 0.1 * k]), yaw=0.8, phase=0.3 * k)
             frames = sim.render(q, targets=[person], seed=900 + k, stamp=t)
         else:
-            frames = sim.render(q, seed=900 + k, stamp=t, effects=SensorEffects(uint16=True))
+            effects = SensorEffects(uint16=True, dropout_cluster=12 if k == 5 else 4)
+            frames = sim.render(q, seed=900 + k, stamp=t, effects=effects)
         out.append((frames, q, t))
     return out
 
@@ -99,11 +103,15 @@ SIGNATURES = textwrap.dedent(
 )
 
 
-def test_warm_up_loads_every_kernel_a_cycle_calls(small_cell: Cell) -> None:
+@pytest.mark.parametrize("which", ["small", "paper"])
+def test_warm_up_loads_every_kernel_a_cycle_calls(which: str) -> None:
     """In a fresh process (the loaded kernels are the process's): no compiled kernel gains a
-    signature in the real cycles after the warm-up."""
+    signature in the real cycles after the warm-up, in the small cell and in the paper cell
+    (whose far dropout patches leave small gaps' residue: its test once compiled in the
+    first cycle of a fresh machine's demo, 155 ms)."""
     from conftest import ROOT, SMALL_CELL
 
-    script = SIGNATURES.format(tests=str(ROOT / "tests"), cell=str(SMALL_CELL))
+    cell = SMALL_CELL if which == "small" else default_cell_path()
+    script = SIGNATURES.format(tests=str(ROOT / "tests"), cell=str(cell))
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True, timeout=600)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr

@@ -71,8 +71,11 @@ def warmup_frames(
     cell: Cell, references: Mapping[str, np.ndarray], stamps: Sequence[float], robot_points: np.ndarray
 ) -> list[dict[str, DepthFrame]]:
     """One frame set per stamp: each camera's reference depth [m] with the standing box
-    (:func:`_box_at`, away from ``robot_points`` (P, 3) [m]) in front of it and eight
-    ``DROPOUT`` px patches with no reading (0) near the image's corners; the cameras' range is not applied (the monitor's pixel classes do)."""
+    (:func:`_box_at`, away from ``robot_points`` (P, 3) [m]) in front of it, eight
+    ``DROPOUT`` px patches with no reading (0) near the image's corners, and one patch a
+    sixteenth of the image wide near its bottom edge (too wide to free whole beyond about
+    0.9 m, whatever the resolution: the small gaps' residue, which far patches leave, and
+    its test run too); the cameras' range is not applied (the monitor's pixel classes do)."""
     out = []
     for k, stamp in enumerate(stamps):
         caster = MeshCaster([_box_at(cell, k, robot_points)])
@@ -84,6 +87,9 @@ def warmup_frames(
             for v in (H // 16, H - H // 16 - DROPOUT):
                 for u in (W // 16, W // 8, W - W // 8 - DROPOUT, W - W // 16 - DROPOUT):
                     depth[v : v + DROPOUT, u : u + DROPOUT] = 0.0
+            wide = max(DROPOUT, W // 16)
+            v, u = H - H // 16 - wide, W // 4
+            depth[max(v, 0) : v + wide, u : u + wide] = 0.0
             frames[cam.name] = DepthFrame(cam.name, depth, stamp=float(stamp))
         out.append(frames)
     return out
