@@ -17,6 +17,7 @@ from polyhull.engine.boxes import (
     ANY_PARALLEL_MIN,
     OverlapSweep,
     TriangleGrid,
+    any_near_upright,
     any_overlap,
     group_bounds,
     groups_meet_triangles,
@@ -135,6 +136,28 @@ def test_any_overlap_reach_is_a_ball() -> None:
     assert not any_overlap(lo, hi, lo + 1.3, hi + 1.3, reach=0.5)[0]
     assert any_overlap(lo, hi, lo + 1.3, hi + 1.3, reach=0.53)[0]
     assert any_overlap(lo, hi, lo + np.array([1.3, 0.0, 0.0]), hi + np.array([1.3, 0.0, 0.0]), reach=0.31)[0]
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(1, 200), m=st.integers(0, 120), margin=st.floats(0.0, 0.6))
+def test_any_near_upright_is_a_cylinder(seed: int, n: int, m: int, margin: float) -> None:
+    """Within ``margin`` horizontally (the Euclidean gap in x, y) and along z (the gap in z):
+    each box grown by an upright cylinder, brute force."""
+    qlo, qhi = _random_boxes(seed, n, 3.0)
+    blo, bhi = _random_boxes(seed + 1, m, 3.0)
+    gaps = np.maximum(np.maximum(blo[None] - qhi[:, None], qlo[:, None] - bhi[None]), 0.0)
+    horizontal = np.linalg.norm(gaps[..., :2], axis=2)
+    expected = ((horizontal <= margin) & (gaps[..., 2] <= margin)).any(axis=1) if m else np.zeros(n, dtype=bool)
+    doubt = ((np.abs(horizontal - margin) < 1e-9) | (np.abs(gaps[..., 2] - margin) < 1e-9)).any(axis=1) if m else np.zeros(n, dtype=bool)
+    got = any_near_upright(qlo, qhi, blo, bhi, margin)
+    assert np.array_equal(got[~doubt], expected[~doubt])
+    # a foot 0.25 m from the leg diagonally is within 0.3 m; the square's corner is not
+    lo, hi = np.zeros((1, 3)), np.full((1, 3), 0.1)
+    diagonal = np.array([0.25, 0.25, 0.0]) / np.sqrt(2.0)
+    assert any_near_upright(lo + 0.1 + diagonal, hi + 0.1 + diagonal, lo, hi, 0.3)[0]
+    corner = np.array([0.29, 0.29, 0.0])
+    assert not any_near_upright(lo + 0.1 + corner, hi + 0.1 + corner, lo, hi, 0.3)[0]
+    assert any_near_upright(lo + np.array([0.0, 0.0, 0.39]), hi + np.array([0.0, 0.0, 0.39]), lo, hi, 0.3)[0]
 
 
 def _fcl_meets(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -70,24 +70,29 @@ def _reference_boxes(pairs: np.ndarray, bounds: np.ndarray, ctx: DynamicContext,
         sh, hmap = ctx.sheets[int(k)], ctx.sheet_heights[int(k)]
         (x0, y0), (x1, y1) = sh.local_box()
         sel = pairs[:, 1] == k
-        a = np.maximum(bounds[sel, :2] - margin, (x0, y0))
-        b = np.minimum(bounds[sel, 3:5] + margin, (x1, y1))
+        # the footprints (from the face's bottom on a vertical face, when hanging)
+        f0, f1 = bounds[sel, :2].copy(), bounds[sel, 3:5].copy()
         if hang and sh.down >= 0:
-            a[:, sh.down] = (x0, y0)[sh.down]
+            f0[:, sh.down] = (x0, y0)[sh.down]
+        a = np.maximum(f0 - margin, (x0, y0))
+        b = np.minimum(f1 + margin, (x1, y1))
         ok = np.all(b > a, axis=1)
-        a, b = a[ok], b[ok]
+        a, b, f0, f1 = a[ok], b[ok], f0[ok], f1[ok]
         if len(a) == 0:
             continue
         origin = np.array([x0, y0])
         ia = np.floor((a - origin) / SHEET_PITCH).astype(np.int64)
         ib = np.ceil((b - origin) / SHEET_PITCH).astype(np.int64)
-        shape = ib.max(axis=0) + 1
-        occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
-        np.add.at(occ, (ia[:, 0], ia[:, 1]), 1)
-        np.add.at(occ, (ib[:, 0], ia[:, 1]), -1)
-        np.add.at(occ, (ia[:, 0], ib[:, 1]), -1)
-        np.add.at(occ, (ib[:, 0], ib[:, 1]), 1)
-        cells = occ.cumsum(0).cumsum(1)[:-1, :-1] > 0
+        shape = ib.max(axis=0)
+        cells = np.zeros((int(shape[0]), int(shape[1])), dtype=bool)
+        # a cell is kept when its square comes within the margin of a footprint (a disc)
+        ci, cj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+        for j in range(len(a)):
+            lo_x, lo_y = x0 + ci * SHEET_PITCH, y0 + cj * SHEET_PITCH
+            dx = np.maximum(np.maximum(lo_x - f1[j, 0], f0[j, 0] - (lo_x + SHEET_PITCH)), 0.0)
+            dy = np.maximum(np.maximum(lo_y - f1[j, 1], f0[j, 1] - (lo_y + SHEET_PITCH)), 0.0)
+            in_range = (ci >= ia[j, 0]) & (ci < ib[j, 0]) & (cj >= ia[j, 1]) & (cj < ib[j, 1])
+            cells |= in_range & (dx**2 + dy**2 <= (margin + 1e-9) ** 2)
         col_h = np.full(cells.shape, sh.height)
         n0, n1 = min(cells.shape[0], hmap.shape[0]), min(cells.shape[1], hmap.shape[1])
         col_h[:n0, :n1] = hmap[:n0, :n1]
@@ -113,7 +118,8 @@ def test_sheet_boxes_equal_the_plain_rule_and_hold_every_footprint(seed: int, n:
     vertices = box_vertices(lo, hi)
     got = sheets_under(vertices, ctx)
     np.testing.assert_allclose(got, _reference(vertices, ctx), rtol=0, atol=1e-12)
-    # every point over a crossing piece's grown footprint, under the height map, is covered
+    # every point within the margin of a crossing piece's footprint (a disc around it),
+    # under the height map, is covered; none beyond the margin and a grid cell's diagonal
     pairs, bounds = _crossing_pairs(vertices, ctx)
     margin = ctx.params.floor_shell_margin
     for (_, k), b in zip(pairs, bounds, strict=True):
@@ -123,15 +129,27 @@ def test_sheet_boxes_equal_the_plain_rule_and_hold_every_footprint(seed: int, n:
         c = np.minimum(b[3:5] + margin, (x1, y1))
         if not np.all(c > a):
             continue
-        p = rng.uniform(a, c, size=(20, 2))
+        p = rng.uniform(a, c, size=(40, 2))
+        gap = np.hypot(*np.maximum(np.maximum(b[:2] - p, p - b[3:5]), 0.0).T)
+        p = p[gap <= margin]
         i = np.floor((p - (x0, y0)) / SHEET_PITCH).astype(int)
         hmap = heights[k]
         inside_map = (i[:, 0] < hmap.shape[0]) & (i[:, 1] < hmap.shape[1])
         h = np.where(inside_map, hmap[np.minimum(i[:, 0], hmap.shape[0] - 1), np.minimum(i[:, 1], hmap.shape[1] - 1)], sh.height)
-        local = np.column_stack([p, rng.uniform(0.0, 1.0, 20) * h * (1 - 1e-9)])
+        local = np.column_stack([p, rng.uniform(0.0, 1.0, len(p)) * h * (1 - 1e-9)])
         W = _to_world(sh.to_local())
         world = local @ W[:, :3].T + W[:, 3]
         assert points_in_hexahedra(world, got).all()
+    # a lone post on the floor keeps a disc of the floor's sheet, not a square: the
+    # sheet's corners diagonal from it, beyond the margin and a cell's diagonal, are free
+    post = box_vertices(np.array([[0.0, 0.0, 0.0]]), np.array([[0.05, 0.05, 1.0]]))
+    boxes = sheets_under(post, ctx)
+    r = margin + SHEET_PITCH * np.sqrt(2.0) + 1e-6
+    d = r / np.sqrt(2.0)
+    corners = np.array([[0.05 + d, 0.05 + d, 0.01], [-d, -d, 0.01], [0.05 + d, -d, 0.01], [-d, 0.05 + d, 0.01]])
+    sides = np.array([[0.05 + 0.99 * margin, 0.02, 0.01], [0.02, -0.99 * margin, 0.01]])
+    assert not points_in_hexahedra(corners, boxes).any()
+    assert points_in_hexahedra(sides, boxes).all()
 
 
 def test_a_body_at_a_table_side_keeps_the_side_sheet_down_to_the_floor() -> None:

@@ -26,7 +26,7 @@ from ..errors import GeometryError
 from ..typed import ArrayF64
 from .threads import share
 
-__all__ = ["OverlapSweep", "overlap_groups", "group_bounds", "any_overlap", "TriangleGrid", "groups_meet_triangles"]
+__all__ = ["OverlapSweep", "overlap_groups", "group_bounds", "any_overlap", "any_near_upright", "TriangleGrid", "groups_meet_triangles"]
 
 
 @nb.njit(cache=True, nogil=True)
@@ -213,12 +213,13 @@ def group_bounds(labels: np.ndarray, lo: ArrayF64, hi: ArrayF64, K: int) -> tupl
 
 
 @nb.njit(cache=True, nogil=True)
-def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, out):  # pragma: no cover - compiled
+def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, dims, out):  # pragma: no cover - compiled
     """Boxes sorted by their x minimum (``keys``): a query's candidates start within
     ``extent`` before it. The boxes starting inside the query's x range grown by ``reach``
     (which meet it along x) are tested first, then those before it, nearest first: hits
     come early. A candidate meets the query when it overlaps the query's box grown by
-    ``reach`` on every side (the sweep's test) and their Euclidean gap is at most ``reach``."""
+    ``reach`` on every side (the sweep's test) and their Euclidean gap over the first
+    ``dims`` axes (3, or 2: in x, y only) is at most ``reach``."""
     n = order.shape[0]
     r2 = reach * reach
     for i in range(qlo.shape[0]):
@@ -231,7 +232,7 @@ def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, out):  # pragma: no cov
                 break
             j = order[a]
             if blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
-                if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j) <= r2:
+                if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2:
                     hit = True
                     break
         if not hit:
@@ -241,7 +242,7 @@ def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, out):  # pragma: no cov
                     break
                 j = order[a]
                 if bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
-                    if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j) <= r2:
+                    if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2:
                         hit = True
                         break
         if hit:
@@ -249,21 +250,30 @@ def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, out):  # pragma: no cov
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _gap2(qlo, qhi, blo, bhi, i, j):  # pragma: no cover - compiled
-    """Squared Euclidean gap between query box i and box j (0 when they overlap)."""
+def _gap2(qlo, qhi, blo, bhi, i, j, dims):  # pragma: no cover - compiled
+    """Squared Euclidean gap between query box i and box j over their first ``dims`` axes
+    (0 when they overlap)."""
     g2 = 0.0
-    for a in range(3):
+    for a in range(dims):
         g = max(blo[j, a] - qhi[i, a], qlo[i, a] - bhi[j, a], 0.0)
         g2 += g * g
     return g2
 
 
 def any_overlap(
-    qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64, pool: Executor | None = None, reach: float = 0.0
+    qlo: ArrayF64,
+    qhi: ArrayF64,
+    blo: ArrayF64,
+    bhi: ArrayF64,
+    pool: Executor | None = None,
+    reach: float = 0.0,
+    upright: bool = False,
 ) -> np.ndarray:
     """(N,) whether each query box [qlo, qhi] (N, 3) meets any box [blo, bhi] (M, 3), or
     with ``reach`` [m] comes within that Euclidean distance of one (the box grown by a
-    ball, not by a cube: along a diagonal a cube reaches sqrt(3) times as far).
+    ball, not by a cube: along a diagonal a cube reaches sqrt(3) times as far); with
+    ``upright``, within ``reach`` horizontally (the Euclidean gap in x, y) and along z (the
+    box grown by an upright cylinder of that radius and half-height).
     With a ``pool`` and many queries, the queries are split over this thread and one of the
     pool's."""
     out = np.zeros(qlo.shape[0], dtype=bool)
@@ -300,7 +310,7 @@ def any_overlap(
         o = np.zeros(len(range(*sl.indices(len(qlo)))), dtype=bool)
         ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
         for order, keys, extent in passes:
-            _any(ql, qh, blo, bhi, order, keys, extent, float(reach), o)
+            _any(ql, qh, blo, bhi, order, keys, extent, float(reach), 2 if upright else 3, o)
         return o
 
     if pool is None or len(qlo) < ANY_PARALLEL_MIN:
@@ -309,6 +319,18 @@ def any_overlap(
     even, odd = share(pool, run, (slice(0, None, 2), slice(1, None, 2)))
     out[0::2], out[1::2] = even, odd
     return out
+
+
+def any_near_upright(
+    qlo: ArrayF64, qhi: ArrayF64, blo: ArrayF64, bhi: ArrayF64, margin: float, pool: Executor | None = None
+) -> np.ndarray:
+    """(N,) whether each query box [qlo, qhi] (N, 3) comes within ``margin`` [m] of any box
+    [blo, bhi] (M, 3) horizontally (a disc in x, y) and within ``margin`` along z: each
+    box grown by an upright cylinder of that radius and half-height (world frame, z up).
+    The shell rule's margin: a foot inside the floor's sheet reaches as far from the leg in
+    every horizontal direction, and a square (a cube's growth) reaches sqrt(2) times as far
+    along its diagonals as any foot does."""
+    return any_overlap(qlo, qhi, blo, bhi, pool, reach=float(margin), upright=True)
 
 
 ANY_PARALLEL_MIN = 512

@@ -28,8 +28,9 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
    radius: a subset of the true shell) or inside one noise sheet (the floor's or an
    obstacle face's, judged at precompute; a vertical face's only ``standing_depth`` deep,
    since a person standing against it sticks out that far) is removed, unless a piece of its component
-   outside every shell lies within ``floor_shell_margin`` of it: a standing person crosses
-   the floor's sheet and keeps their feet, a hand reaching into the robot's shell is
+   outside every shell lies within ``floor_shell_margin`` of it, horizontally (a disc, as
+   far in every direction) and along z: a standing person crosses the floor's sheet and
+   keeps their feet, a hand reaching into the robot's shell is
    attached to an arm outside it. Pieces touching the boundary of Z are kept with
    ``keep_at_boundary``;
 4. ``entry``: touches neither the boundary of Z, an entry area, M, nor comes within
@@ -40,8 +41,10 @@ The rules (each switchable, in ``RULE_ORDER``, the first that fires is reported)
 
 A kept component keeps the **noise sheet under it** (unless it holds no reading: made only
 of the far part of small gaps, see :func:`judge_dynamic`): for every kept piece that crosses the
-top of a sheet (floor, obstacle face), a box over the piece's footprint on that face, grown
-by ``floor_shell_margin``, as high as C_static reaches in the sheet's slab there (its height
+top of a sheet (floor, obstacle face), the sheet's grid cells within ``floor_shell_margin``
+of the piece's footprint on that face (a disc around it, not a square: a foot reaches as
+far from the leg in every direction, and a square's corners reach sqrt(2) times as far),
+as high as C_static reaches in the sheet's slab there (its height
 map, measured at precompute): a standing person's legs cross the top of
 the floor's sheet, and their feet are in the sheet within that margin of the legs. Pieces
 wholly inside a sheet (noise in the band, a limb lying flatter than the sheet) do not
@@ -75,7 +78,7 @@ from ..cell import Cell, PlausibilityParams, Zone
 from ..distance import hexahedra_triangles
 from ..plausibility import RULE_ORDER, RemovedComponent
 from ..typed import ArrayF64
-from .boxes import OverlapSweep, any_overlap, group_bounds
+from .boxes import OverlapSweep, any_near_upright, any_overlap, group_bounds
 from .pieces import PARALLEL_MIN, vertex_bounds
 from .static_model import SHEET_PITCH, Sheet, TouchGrid, _to_world
 from .threads import share
@@ -452,12 +455,13 @@ def shell_cuts(
 ) -> np.ndarray:
     """(N,) the pieces the part-wise ``too_thin`` rule removes: inside a shell
     (``inside``), not ``spared``, and farther than ``floor_shell_margin`` from every piece
-    outside the shells (of any component: a superset of "of its own", keeps more)."""
+    outside the shells (of any component: a superset of "of its own", keeps more),
+    horizontally or along z (:func:`polyhull.engine.boxes.any_near_upright`)."""
     cut = inside & ~spared
     if cut.any() and (~inside).any():
         lo, hi = vertex_bounds(vertices)
         m = ctx.params.floor_shell_margin
-        cut[cut] = ~any_overlap(lo[cut], hi[cut], lo[~inside] - m, hi[~inside] + m, pool)
+        cut[cut] = ~any_near_upright(lo[cut], hi[cut], lo[~inside], hi[~inside], m, pool)
     return cut
 
 
@@ -831,13 +835,14 @@ def crosses_sheet_top(vertices: ArrayF64, ctx: DynamicContext) -> np.ndarray:
 def sheets_under(vertices: ArrayF64, ctx: DynamicContext, horizontal: bool = False) -> ArrayF64:
     """Boxes (S, 8, 3) of the sheets under kept pieces (see the module docstring): for
     every piece that crosses a sheet's top face (or reaches into a vertical sheet), the
-    sheet over the piece's footprint on the face, grown by ``floor_shell_margin`` and
-    clipped to the face; on a vertical face, the footprint reaches down to the face's
-    bottom, and for a piece that reaches it from above its (low) upper edge, the floor's
-    sheet (or a top's) is kept under those boxes in turn (the feet of a person at a table).
+    sheet within ``floor_shell_margin`` of the piece's footprint on the face (the cells
+    of its grid whose square comes within that Euclidean distance), clipped to the face;
+    on a vertical face, the footprint reaches down to the face's bottom, and for a piece
+    that reaches it from above its (low) upper edge, the floor's sheet (or a top's) is
+    kept under those boxes in turn (the feet of a person at a table).
 
-    Per sheet, the union of the footprints on a grid of ``SHEET_PITCH`` cells (a
-    superset), as one box per run of cells along x, the run broken where the height map
+    Per sheet, the union of those cells of ``SHEET_PITCH`` (a superset of the grown
+    footprints), as one box per run of cells along x, the run broken where the height map
     changes by more than ``SHEET_STEP``: each box is as high as C_static reaches in the
     slab over its run (the sheet's height where no height map is known). One compiled
     pass over the sheets (:func:`_sheet_boxes`). ``horizontal``: the horizontal sheets only
@@ -939,47 +944,54 @@ def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, marg
         while p1 < P and sheet[p1] == k:
             p1 += 1
         x0, y0, x1, y1 = face[k, 0], face[k, 1], face[k, 2], face[k, 3]
+        # each footprint (the piece's bounds on the face; on a vertical face from the
+        # face's bottom), and the cells of the face's grid within ``margin`` of it: the
+        # cell's square at a Euclidean distance of at most ``margin`` (a disc around the
+        # footprint, not a square: a foot lies within the margin of the leg in any direction)
+        fp = np.empty((p1 - p0, 4))
         ia = np.empty((p1 - p0, 2), dtype=np.int64)
         ib = np.empty((p1 - p0, 2), dtype=np.int64)
         m = 0
         s0 = 0
         s1 = 0
         for p in range(p0, p1):
-            a0 = x0 if down[k] == 0 else max(bounds[p, 0] - margin, x0)
-            a1 = y0 if down[k] == 1 else max(bounds[p, 1] - margin, y0)
-            b0 = min(bounds[p, 3] + margin, x1)
-            b1 = min(bounds[p, 4] + margin, y1)
+            fx0 = x0 if down[k] == 0 else bounds[p, 0]
+            fy0 = y0 if down[k] == 1 else bounds[p, 1]
+            fx1 = bounds[p, 3]
+            fy1 = bounds[p, 4]
+            a0 = max(fx0 - margin, x0)
+            a1 = max(fy0 - margin, y0)
+            b0 = min(fx1 + margin, x1)
+            b1 = min(fy1 + margin, y1)
             if not (b0 > a0 and b1 > a1):
                 continue
+            fp[m, 0], fp[m, 1], fp[m, 2], fp[m, 3] = fx0, fy0, fx1, fy1
             ia[m, 0] = int(np.floor((a0 - x0) / pitch))
             ia[m, 1] = int(np.floor((a1 - y0) / pitch))
             ib[m, 0] = int(np.ceil((b0 - x0) / pitch))
             ib[m, 1] = int(np.ceil((b1 - y0) / pitch))
-            s0 = max(s0, ib[m, 0] + 1)
-            s1 = max(s1, ib[m, 1] + 1)
+            s0 = max(s0, ib[m, 0])
+            s1 = max(s1, ib[m, 1])
             m += 1
         p0 = p1
         if m == 0:
             continue
-        # the union of the footprints' cells (a difference grid, then prefix sums)
-        occ = np.zeros((s0 + 1, s1 + 1), dtype=np.int64)
-        for j in range(m):
-            occ[ia[j, 0], ia[j, 1]] += 1
-            occ[ib[j, 0], ia[j, 1]] -= 1
-            occ[ia[j, 0], ib[j, 1]] -= 1
-            occ[ib[j, 0], ib[j, 1]] += 1
-        for i in range(1, s0 + 1):
-            for j in range(s1 + 1):
-                occ[i, j] += occ[i - 1, j]
-        for i in range(s0 + 1):
-            for j in range(1, s1 + 1):
-                occ[i, j] += occ[i, j - 1]
         cells = np.zeros((s0, s1), dtype=np.bool_)
+        m2 = (margin + 1e-9) * (margin + 1e-9)
+        for j in range(m):
+            for i in range(ia[j, 0], ib[j, 0]):
+                cx0 = x0 + i * pitch
+                dx = max(max(cx0 - fp[j, 2], fp[j, 0] - (cx0 + pitch)), 0.0)
+                for jj in range(ia[j, 1], ib[j, 1]):
+                    if cells[i, jj]:
+                        continue
+                    cy0 = y0 + jj * pitch
+                    dy = max(max(cy0 - fp[j, 3], fp[j, 1] - (cy0 + pitch)), 0.0)
+                    cells[i, jj] = dx * dx + dy * dy <= m2
         col_h = np.full((s0, s1), height[k])
         h0, h1 = hshape[k, 0], hshape[k, 1]
         for i in range(s0):
             for j in range(s1):
-                cells[i, j] = occ[i, j] > 0
                 if i < h0 and j < h1:
                     col_h[i, j] = hflat[hoff[k] + i * h1 + j]
         runs = _sheet_runs(cells, col_h, step)

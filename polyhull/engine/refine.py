@@ -47,7 +47,7 @@ import numba as nb
 import numpy as np
 
 from ..typed import ArrayF64
-from .boxes import any_overlap
+from .boxes import any_near_upright
 from .pieces import PieceSet, vertex_bounds
 from .static_model import SHEET_PITCH
 
@@ -336,10 +336,10 @@ def refine_kept(
             lo, hi = vertex_bounds(kept.vertices)
             test = inside & ~cut & ((flags & SPARED) == 0)
             old = np.nonzero(test[:n_rest])[0]  # only those that can be cut ask
-            test[old] = any_overlap(lo[old], hi[old], changed_lo - margin, changed_hi + margin, pool)
+            test[old] = any_near_upright(lo[old], hi[old], changed_lo, changed_hi, margin, pool)
             if test.any():
                 keepers = ~inside
-                cut[test] = ~any_overlap(lo[test], hi[test], lo[keepers] - margin, hi[keepers] + margin, pool)
+                cut[test] = ~any_near_upright(lo[test], hi[test], lo[keepers], hi[keepers], margin, pool)
         sheets, result = final()
         front = float(result.distance)
     if result is None:  # nothing to refine from the hinted frontier
