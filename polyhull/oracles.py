@@ -28,6 +28,7 @@ __all__ = [
     "exact_hulls",
     "flying_edge_free",
     "in_solids",
+    "legs_footprint",
     "padded_robot_occlusion",
     "padded_robot_shadow",
     "pixels_of",
@@ -310,6 +311,22 @@ GAP_FEW = 256
 """Border points (those nearest the links' bounding spheres) that bound the distance first."""
 
 
+def legs_footprint(person: Any, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) (2,) each: the x, y bounds of the person mesh's section at ``height`` [m]
+    (the legs where they cross the floor sheet's top), or of the whole mesh where it has
+    no section there (wholly above or below). The engine keeps the floor's sheet within
+    ``floor_shell_margin`` of what its region has crossing that height, which holds the
+    legs' section: the oracle's feet region, within the margin of the section itself, is
+    the least the engine's can be."""
+    import trimesh
+
+    lines = trimesh.intersections.mesh_plane(person, [0.0, 0.0, 1.0], [0.0, 0.0, float(height)])
+    if len(lines) == 0:
+        return np.asarray(person.bounds[0][:2], dtype=float), np.asarray(person.bounds[1][:2], dtype=float)
+    pts = np.asarray(lines, dtype=float).reshape(-1, 3)
+    return pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+
+
 def _sphere(vertices: np.ndarray) -> tuple[np.ndarray, float]:
     """A sphere (centre, radius [m]) around the points: centred on their bounding box."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -335,8 +352,9 @@ class ExactHullGap:
       covers is not freed there);
     - outside the solid obstacles;
     - outside the floor's noise sheet (the static model's floor sheet: below its top),
-      except within ``plausibility.floor_shell_margin`` horizontally of the person's
-      bounding box (a person keeps their feet).
+      except within ``plausibility.floor_shell_margin`` horizontally of the bounds of the
+      person's section at the sheet's top (:func:`legs_footprint`: a person keeps their
+      feet).
 
     The kept points are labelled into 26-connected components (``scipy.ndimage.label``);
     the components that hold the person's interior (``trimesh.sample.volume_mesh``) are the
@@ -351,7 +369,7 @@ class ExactHullGap:
     It is an estimate, not a proof: the hull is sampled at ``grid`` (a part thinner than a
     grid step can be missed or split, and the distance is off by up to half a grid cell's
     diagonal, about 0.022 m at 0.025 m); the floor sheet rule is approximated by a height and
-    a margin around the person's box; a part reaching beyond the grid's sides is cut there
+    a margin around the legs' section's bounds; a part reaching beyond the grid's sides is cut there
     (it may only make the distance larger; ``clipped`` says when it happened).
     """
 
@@ -452,7 +470,7 @@ class ExactHullGap:
                 & ((gy >= b0[1]) & (gy <= b1[1]))[None, :, None]
                 & ((gz >= b0[2]) & (gz <= b1[2]))[None, None, :]
             )
-        p0, p1 = person.bounds
+        p0, p1 = legs_footprint(person, self.floor_top)
         dx = np.maximum(np.maximum(p0[0] - gx, gx - p1[0]), 0.0)
         dy = np.maximum(np.maximum(p0[1] - gy, gy - p1[1]), 0.0)
         feet = dx[:, None] ** 2 + dy[None, :] ** 2 <= cell.plausibility.floor_shell_margin**2

@@ -21,6 +21,7 @@ from polyhull.oracles import (
     exact_hull,
     exact_hulls,
     flying_edge_free,
+    legs_footprint,
     padded_robot_occlusion,
     padded_robot_shadow,
 )
@@ -126,7 +127,7 @@ def test_exact_hull_gap_grid_matches_the_point_oracle(small_monitor: Monitor, ga
     axes, _, kept = oracle.kept(g["frames"], references, g["person"])
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     exact, _ = exact_hull(small_monitor, g["frames"], points)
-    p0, p1 = g["person"].bounds
+    p0, p1 = legs_footprint(g["person"], oracle.floor_top)
     dx = np.maximum(np.maximum(p0[0] - points[:, 0], points[:, 0] - p1[0]), 0.0)
     dy = np.maximum(np.maximum(p0[1] - points[:, 1], points[:, 1] - p1[1]), 0.0)
     sheet = (points[:, 2] < oracle.floor_top) & (np.hypot(dx, dy) > small_monitor.cell.plausibility.floor_shell_margin)
@@ -166,3 +167,20 @@ def test_flying_edge_free_marks_a_lone_mixed_reading_at_a_static_edge(small_moni
     assert np.isinf(flying_edge_free(s, D2)[v, u])
     D[v, u] = B[v, u]  # its own background: not a flying reading
     assert np.isinf(flying_edge_free(s, D)[v, u])
+
+
+def test_legs_footprint_is_the_section_of_the_legs(gap_scene: dict[str, Any]) -> None:
+    """At shin height the section holds the legs, not the arms: inside the person's bounds
+    and narrower than them; above the person, the whole mesh's bounds."""
+    person = gap_scene["person"]
+    (b0, b1), top = person.bounds, float(person.bounds[1][2])
+    lo, hi = legs_footprint(person, 0.2)
+    assert np.all(lo >= b0[:2] - 1e-9) and np.all(hi <= b1[:2] + 1e-9)
+    assert np.prod(hi - lo) < 0.8 * np.prod(b1[:2] - b0[:2])
+    # every mesh point at that height lies in it
+    v = person.vertices
+    near = np.abs(v[:, 2] - 0.2) < 1e-3
+    assert np.all(v[near, :2] >= lo - 1e-9) and np.all(v[near, :2] <= hi + 1e-9)
+    lo, hi = legs_footprint(person, top + 1.0)
+    np.testing.assert_allclose(lo, b0[:2])
+    np.testing.assert_allclose(hi, b1[:2])
