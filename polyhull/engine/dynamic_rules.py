@@ -929,14 +929,28 @@ def _height_maps(heights: tuple[np.ndarray, ...], n: int) -> tuple[ArrayF64, np.
     return val
 
 
+SHEET_ROWS = 2
+"""Rows of the sheet boxes per ``SHEET_PITCH`` cell (see :func:`_sheet_boxes`): each row's
+boxes end where the disc around a footprint ends, to ``SHEET_PITCH / SHEET_ROWS`` across."""
+
+
 @nb.njit(cache=True, nogil=True)
 def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, margin, pitch, step):  # pragma: no cover - compiled
     """World boxes (B, 8, 3) of :func:`sheets_under` from the crossing pairs' sheets (P,)
     (sorted) and the pieces' local bounds (P, 6); ``down`` (S,): the local axis along world
-    z of a vertical sheet (its footprints reach down to the face's bottom), -1 otherwise."""
+    z of a vertical sheet (its footprints reach down to the face's bottom), -1 otherwise.
+
+    Per sheet, in rows ``pitch / SHEET_ROWS`` wide along the face's local y: in each row, the
+    union of the x intervals within ``margin`` of a footprint (the disc around it, its
+    half-width at the row's least distance to the footprint, so a superset), clipped to the
+    face; each interval is cut where the height map (cells of ``pitch``) changes by more
+    than ``step`` from the run's first cell, and each part is a box as high as the highest
+    cell it covers; a box equal along x and in height to one in the row before extends it."""
     out = np.empty((64, 8, 3))
     nb_out = 0
     P = sheet.shape[0]
+    hs = pitch / SHEET_ROWS
+    m2 = margin * margin
     p0 = 0
     while p0 < P:
         k = sheet[p0]
@@ -944,104 +958,141 @@ def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, marg
         while p1 < P and sheet[p1] == k:
             p1 += 1
         x0, y0, x1, y1 = face[k, 0], face[k, 1], face[k, 2], face[k, 3]
-        # each footprint (the piece's bounds on the face; on a vertical face from the
-        # face's bottom), and the cells of the face's grid within ``margin`` of it: the
-        # cell's square at a Euclidean distance of at most ``margin`` (a disc around the
-        # footprint, not a square: a foot lies within the margin of the leg in any direction)
+        # the footprints (on a vertical face from the face's bottom) whose grown box meets the face
         fp = np.empty((p1 - p0, 4))
-        ia = np.empty((p1 - p0, 2), dtype=np.int64)
-        ib = np.empty((p1 - p0, 2), dtype=np.int64)
         m = 0
-        s0 = 0
-        s1 = 0
+        ymin = np.inf
+        ymax = -np.inf
+        xmax = -np.inf
         for p in range(p0, p1):
             fx0 = x0 if down[k] == 0 else bounds[p, 0]
             fy0 = y0 if down[k] == 1 else bounds[p, 1]
             fx1 = bounds[p, 3]
             fy1 = bounds[p, 4]
-            a0 = max(fx0 - margin, x0)
-            a1 = max(fy0 - margin, y0)
-            b0 = min(fx1 + margin, x1)
-            b1 = min(fy1 + margin, y1)
-            if not (b0 > a0 and b1 > a1):
+            if not (min(fx1 + margin, x1) > max(fx0 - margin, x0) and min(fy1 + margin, y1) > max(fy0 - margin, y0)):
                 continue
             fp[m, 0], fp[m, 1], fp[m, 2], fp[m, 3] = fx0, fy0, fx1, fy1
-            ia[m, 0] = int(np.floor((a0 - x0) / pitch))
-            ia[m, 1] = int(np.floor((a1 - y0) / pitch))
-            ib[m, 0] = int(np.ceil((b0 - x0) / pitch))
-            ib[m, 1] = int(np.ceil((b1 - y0) / pitch))
-            s0 = max(s0, ib[m, 0])
-            s1 = max(s1, ib[m, 1])
+            ymin = min(ymin, max(fy0 - margin, y0))
+            ymax = max(ymax, min(fy1 + margin, y1))
+            xmax = max(xmax, min(fx1 + margin, x1))
             m += 1
         p0 = p1
         if m == 0:
             continue
-        cells = np.zeros((s0, s1), dtype=np.bool_)
-        m2 = (margin + 1e-9) * (margin + 1e-9)
-        for j in range(m):
-            for i in range(ia[j, 0], ib[j, 0]):
-                cx0 = x0 + i * pitch
-                dx = max(max(cx0 - fp[j, 2], fp[j, 0] - (cx0 + pitch)), 0.0)
-                for jj in range(ia[j, 1], ib[j, 1]):
-                    if cells[i, jj]:
-                        continue
-                    cy0 = y0 + jj * pitch
-                    dy = max(max(cy0 - fp[j, 3], fp[j, 1] - (cy0 + pitch)), 0.0)
-                    cells[i, jj] = dx * dx + dy * dy <= m2
-        col_h = np.full((s0, s1), height[k])
+        # the height map's cells over the footprints' reach
+        s0 = int(np.ceil((xmax - x0) / pitch))
+        s1 = int(np.ceil((ymax - y0) / pitch))
+        col_h = np.full((max(s0, 1), max(s1, 1)), height[k])
         h0, h1 = hshape[k, 0], hshape[k, 1]
-        for i in range(s0):
-            for j in range(s1):
-                if i < h0 and j < h1:
-                    col_h[i, j] = hflat[hoff[k] + i * h1 + j]
-        runs = _sheet_runs(cells, col_h, step)
-        for r in range(runs.shape[0]):
-            lx = min(x0 + runs[r, 0] * pitch, x1)
-            ly = min(y0 + runs[r, 1] * pitch, y1)
-            hx = min(x0 + runs[r, 2] * pitch, x1)
-            hy = min(y0 + runs[r, 3] * pitch, y1)
-            top = runs[r, 4]
+        for i in range(min(s0, h0)):
+            for j in range(min(s1, h1)):
+                col_h[i, j] = hflat[hoff[k] + i * h1 + j]
+        local = np.empty((64, 5))  # lx, ly, hx, hy, top
+        nl = 0
+        prev0 = 0  # the row before's boxes: local[prev0:prev1]
+        prev1 = 0
+        ia = np.empty(m)
+        ib = np.empty(m)
+        r0 = int(np.floor((ymin - y0) / hs))
+        for r in range(r0, int(np.ceil((ymax - y0) / hs))):
+            ya = y0 + r * hs
+            yb = min(ya + hs, y1)
+            if not yb > ya:
+                break
+            j = min(int(np.floor((ya - y0) / pitch + 1e-9)), s1 - 1)
+            # this row's intervals, sorted by their start (insertion: few footprints a sheet)
+            n = 0
+            for q in range(m):
+                dy = max(max(fp[q, 1] - yb, ya - fp[q, 3]), 0.0)
+                if dy > margin:
+                    continue
+                w = np.sqrt(max(m2 - dy * dy, 0.0))
+                a = max(fp[q, 0] - w, x0)
+                b = min(fp[q, 2] + w, x1)
+                if not b > a:
+                    continue
+                t = n
+                while t > 0 and ia[t - 1] > a:
+                    ia[t] = ia[t - 1]
+                    ib[t] = ib[t - 1]
+                    t -= 1
+                ia[t] = a
+                ib[t] = b
+                n += 1
+            row0 = nl
+            t = 0
+            while t < n:
+                a = ia[t]
+                b = ib[t]
+                t += 1
+                while t < n and ia[t] <= b:
+                    b = max(b, ib[t])
+                    t += 1
+                # the merged interval [a, b], cut where the height changes
+                i = min(int(np.floor((a - x0) / pitch)), s0 - 1)
+                i_end = min(int(np.ceil((b - x0) / pitch)), s0)
+                while i < i_end:
+                    start = i
+                    base = col_h[i, j]
+                    top = base
+                    i += 1
+                    while i < i_end and abs(col_h[i, j] - base) <= step:
+                        top = max(top, col_h[i, j])
+                        i += 1
+                    lx = max(a, x0 + start * pitch)
+                    hx = min(b, x0 + i * pitch)
+                    if not hx > lx:
+                        continue
+                    grown = False
+                    for e in range(prev0, prev1):
+                        if local[e, 0] == lx and local[e, 2] == hx and local[e, 4] == top and local[e, 3] == ya:
+                            local[e, 3] = yb
+                            grown = True
+                            break
+                    if grown:
+                        continue
+                    if nl == local.shape[0]:
+                        more = np.empty((2 * nl, 5))
+                        more[:nl] = local[:nl]
+                        local = more
+                    local[nl, 0], local[nl, 1], local[nl, 2], local[nl, 3], local[nl, 4] = lx, ya, hx, yb, top
+                    nl += 1
+            # a box grown in this row is one of this row's too (it may grow again)
+            keep0 = nl
+            for e in range(prev0, prev1):
+                if local[e, 3] == yb:
+                    keep0 = -1
+                    break
+            if keep0 == -1:
+                # the rows' boxes are not contiguous in ``local``: the grown ones are moved
+                # after this row's new ones (their order does not matter)
+                for e in range(prev0, prev1):
+                    if local[e, 3] == yb:
+                        if nl == local.shape[0]:
+                            more = np.empty((2 * nl, 5))
+                            more[:nl] = local[:nl]
+                            local = more
+                        local[nl] = local[e]
+                        local[e, 4] = np.nan  # moved
+                        nl += 1
+            prev0 = row0
+            prev1 = nl
+        for e in range(nl):
+            if local[e, 4] != local[e, 4]:
+                continue  # moved to a later row
             if nb_out == out.shape[0]:
-                grown = np.empty((2 * out.shape[0], 8, 3))
-                grown[:nb_out] = out[:nb_out]
-                out = grown
+                grown_out = np.empty((2 * out.shape[0], 8, 3))
+                grown_out[:nb_out] = out[:nb_out]
+                out = grown_out
+            lx, ly, hx, hy, top = local[e, 0], local[e, 1], local[e, 2], local[e, 3], local[e, 4]
             for c in range(8):
                 x = lx if (c % 4 == 0 or c % 4 == 3) else hx
                 y = ly if (c % 4 < 2) else hy
                 z = 0.0 if c < 4 else top
-                for a in range(3):
-                    out[nb_out, c, a] = W[k, a, 0] * x + W[k, a, 1] * y + W[k, a, 2] * z + W[k, a, 3]
+                for a3 in range(3):
+                    out[nb_out, c, a3] = W[k, a3, 0] * x + W[k, a3, 1] * y + W[k, a3, 2] * z + W[k, a3, 3]
             nb_out += 1
     return out[:nb_out]
-
-
-@nb.njit(cache=True, nogil=True)
-def _sheet_runs(cells, heights, step):  # pragma: no cover - compiled
-    """(R, 5) runs of occupied ``cells`` (nx, ny) along x: i0, j, i1 (exclusive), j + 1, and
-    the highest ``heights`` over the run; a run also breaks where the height differs from
-    its first cell's by more than ``step``."""
-    out = np.empty((cells.shape[0] * cells.shape[1], 5))
-    n = 0
-    for j in range(cells.shape[1]):
-        i = 0
-        while i < cells.shape[0]:
-            if not cells[i, j]:
-                i += 1
-                continue
-            start = i
-            base = heights[i, j]
-            top = base
-            i += 1
-            while i < cells.shape[0] and cells[i, j] and abs(heights[i, j] - base) <= step:
-                top = max(top, heights[i, j])
-                i += 1
-            out[n, 0] = start
-            out[n, 1] = j
-            out[n, 2] = i
-            out[n, 3] = j + 1
-            out[n, 4] = top
-            n += 1
-    return out[:n]
 
 
 class LazyMesh:
