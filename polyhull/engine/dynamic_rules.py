@@ -993,8 +993,8 @@ def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, marg
                 col_h[i, j] = hflat[hoff[k] + i * h1 + j]
         local = np.empty((64, 5))  # lx, ly, hx, hy, top
         nl = 0
-        prev0 = 0  # the row before's boxes: local[prev0:prev1]
-        prev1 = 0
+        last = np.empty(16, dtype=np.int64)  # the row before's boxes (indices into local)
+        n_last = 0
         ia = np.empty(m)
         ib = np.empty(m)
         r0 = int(np.floor((ymin - y0) / hs))
@@ -1023,7 +1023,8 @@ def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, marg
                 ia[t] = a
                 ib[t] = b
                 n += 1
-            row0 = nl
+            now = np.empty(max(16, 2 * n_last), dtype=np.int64)  # this row's boxes
+            n_now = 0
             t = 0
             while t < n:
                 a = ia[t]
@@ -1047,43 +1048,29 @@ def _sheet_boxes(sheet, bounds, face, W, height, down, hflat, hoff, hshape, marg
                     hx = min(b, x0 + i * pitch)
                     if not hx > lx:
                         continue
-                    grown = False
-                    for e in range(prev0, prev1):
-                        if local[e, 0] == lx and local[e, 2] == hx and local[e, 4] == top and local[e, 3] == ya:
-                            local[e, 3] = yb
-                            grown = True
+                    e = -1  # a box of the row before, equal along x and in height, grows
+                    for t2 in range(n_last):
+                        g = last[t2]
+                        if local[g, 0] == lx and local[g, 2] == hx and local[g, 4] == top and local[g, 3] == ya:
+                            local[g, 3] = yb
+                            e = g
                             break
-                    if grown:
-                        continue
-                    if nl == local.shape[0]:
-                        more = np.empty((2 * nl, 5))
-                        more[:nl] = local[:nl]
-                        local = more
-                    local[nl, 0], local[nl, 1], local[nl, 2], local[nl, 3], local[nl, 4] = lx, ya, hx, yb, top
-                    nl += 1
-            # a box grown in this row is one of this row's too (it may grow again)
-            keep0 = nl
-            for e in range(prev0, prev1):
-                if local[e, 3] == yb:
-                    keep0 = -1
-                    break
-            if keep0 == -1:
-                # the rows' boxes are not contiguous in ``local``: the grown ones are moved
-                # after this row's new ones (their order does not matter)
-                for e in range(prev0, prev1):
-                    if local[e, 3] == yb:
+                    if e < 0:
                         if nl == local.shape[0]:
                             more = np.empty((2 * nl, 5))
                             more[:nl] = local[:nl]
                             local = more
-                        local[nl] = local[e]
-                        local[e, 4] = np.nan  # moved
+                        local[nl, 0], local[nl, 1], local[nl, 2], local[nl, 3], local[nl, 4] = lx, ya, hx, yb, top
+                        e = nl
                         nl += 1
-            prev0 = row0
-            prev1 = nl
+                    if n_now == now.shape[0]:
+                        more_i = np.empty(2 * n_now, dtype=np.int64)
+                        more_i[:n_now] = now[:n_now]
+                        now = more_i
+                    now[n_now] = e
+                    n_now += 1
+            last, n_last = now, n_now
         for e in range(nl):
-            if local[e, 4] != local[e, 4]:
-                continue  # moved to a later row
             if nb_out == out.shape[0]:
                 grown_out = np.empty((2 * out.shape[0], 8, 3))
                 grown_out[:nb_out] = out[:nb_out]
