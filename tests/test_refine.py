@@ -14,6 +14,8 @@ from polyhull.engine.dynamic_rules import box_vertices
 from polyhull.engine.pieces import PieceSet
 from polyhull.engine.refine import (
     BAND,
+    FINE,
+    MEMORY,
     OWN,
     SETTLED,
     RegionRules,
@@ -124,6 +126,42 @@ def test_a_false_crossing_loses_its_sheet_and_the_feet_it_kept() -> None:
     region = np.concatenate([out.pieces.vertices, out.sheets])
     assert out.distance.distance == measure(region, None).distance
     assert out.distance.distance > 1.6 - 1.3  # farther than B was
+
+
+def test_a_memory_piece_is_carved_down_to_fine_in_one_round() -> None:
+    # M: a coarse piece of the shadow memory (0.4 m) that seems to cross the sheet's top;
+    # only carved down to FINE does it show that nothing of it stands out of the sheet
+    # (a quarter of its size, 0.1 m, still seems to). B: a piece inside the sheet, kept
+    # only within the margin of M. O: an own piece of M's size that crosses the sheet.
+    kept = _boxes(
+        [
+            (1, 1.0, 0.0, 0.0, 1.4, 0.4, 0.35),  # M
+            (2, 1.45, 0.0, 0.0, 1.5, 0.1, 0.20),  # B
+            (3, 0.25, 0.0, 0.0, 0.65, 0.4, 0.35),  # O: behind M, within the frontier's reach
+        ]
+    )
+    minima: dict[int, float] = {}
+
+    def recarve(boxes: np.ndarray, flags: int, offset: float, alpha: float, size_min: float) -> PieceSet:
+        rows = []
+        for b in boxes:
+            minima[int(b[0])] = size_min
+            if int(b[0]) == 1 and size_min <= FINE:
+                rows.append((4, 1.0, 0.0, 0.0, 1.4, 0.4, 0.28))  # all inside the sheet
+            else:
+                rows.append(tuple(b))
+        return _boxes(rows)
+
+    measure, _ = _measure(robot_x=1.8)
+    flags = np.array([MEMORY, OWN, OWN], dtype=np.int8)
+    rules = _rules(0.3)
+    out = refine_kept(kept, flags, rules.in_shells(kept.vertices), rules, np.array([[2.0, 0.05, 0.2, 0.2]]), 0.25, recarve, measure)
+    assert out.rounds == 1
+    assert minima[1] == FINE  # the memory's piece: FINE at once
+    assert math.isclose(minima[3], 0.25 * 0.4)  # an own piece: a quarter of its size
+    # M's child is inside the sheet and B was kept only by M: both go in this round
+    assert sorted(out.cut.boxes[:, 0].tolist()) == [2.0, 4.0]
+    assert math.isclose(out.distance.distance, 1.8 - (0.65 + 0.3))  # O's sheet, with the margin
 
 
 def test_unchanged_pieces_settle_and_a_real_crossing_keeps_its_sheet() -> None:

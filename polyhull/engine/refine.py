@@ -22,7 +22,11 @@ sheet keeps the sheet under it and the pieces inside the sheet within
   spheres) is within ``BAND`` of F are carved again with F as the offset of the size
   budget: pieces at the frontier are split down to ``FINE``, coarser behind it; pieces
   that cross a sheet's top within ``REACH_EXTRA + floor_shell_margin`` of F are split down
-  to ``FINE`` everywhere; each round splits a piece to at most a quarter of its size, a
+  to ``FINE`` everywhere; each round splits a piece to at most a quarter of its size
+  (the shadow memory's pieces, a few tens grown from the last cycle's seeds at the carve's
+  coarse size, down to ``FINE`` at once: a coarse memory piece that seems to cross the
+  floor sheet's top keeps the sheet within ``floor_shell_margin`` of its whole box, which
+  one more round, not the memory, removed), a
   piece that comes back unchanged is ``SETTLED``, at most ``ROUNDS`` rounds; the pieces
   farther than that reach from the first frontier keep their sheets and distance,
   measured once;
@@ -316,8 +320,9 @@ def refine_kept(
             for f in np.unique(flags[group]):
                 idx = group & (flags == f)  # one call per flag value: its children inherit it
                 # a quarter of the largest size per round: the next round splits again
-                # only what still decides the distance or crosses a sheet's top
-                smin = max(FINE, 0.25 * float(size[idx].max()))
+                # only what still decides the distance or crosses a sheet's top; the
+                # memory's pieces (tens, grown at the carve's coarse size) straight to FINE
+                smin = FINE if f & MEMORY else max(FINE, 0.25 * float(size[idx].max()))
                 new = recarve(kept.boxes[idx], int(f), front, a, smin)
                 parts.append(new)
                 out_flags.append(np.where(_same_rows(new.boxes, kept.boxes[idx]), f | SETTLED, f).astype(flags.dtype))
