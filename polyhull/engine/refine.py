@@ -23,10 +23,10 @@ sheet keeps the sheet under it and the pieces inside the sheet within
   budget: pieces at the frontier are split down to ``FINE``, coarser behind it; pieces
   that cross a sheet's top within ``REACH_EXTRA + floor_shell_margin`` of F are split down
   to ``FINE`` everywhere; each round splits a piece to at most a quarter of its size
-  (the shadow memory's pieces, a few tens grown from the last cycle's seeds at the carve's
-  coarse size, down to ``FINE`` at once: a coarse memory piece that seems to cross the
-  floor sheet's top keeps the sheet within ``floor_shell_margin`` of its whole box, which
-  one more round, not the memory, removed), a
+  (the shadow memory's pieces, a few tens, carved at ``MEMORY_PIECE`` and left to this
+  step to split, down to ``FINE`` at once: at a quarter, a memory piece that seemed to
+  cross the floor sheet's top kept the sheet within ``floor_shell_margin`` of its whole
+  box, which only a second round removed), a
   piece that comes back unchanged is ``SETTLED``, at most ``ROUNDS`` rounds; the pieces
   farther than that reach from the first frontier keep their sheets and distance,
   measured once;
