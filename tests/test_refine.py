@@ -16,6 +16,7 @@ from polyhull.engine.refine import (
     BAND,
     FINE,
     MEMORY,
+    MEMORY_FINE,
     OWN,
     SETTLED,
     RegionRules,
@@ -162,6 +163,29 @@ def test_a_memory_piece_is_carved_down_to_fine_in_one_round() -> None:
     # M's child is inside the sheet and B was kept only by M: both go in this round
     assert sorted(out.cut.boxes[:, 0].tolist()) == [2.0, 4.0]
     assert math.isclose(out.distance.distance, 1.8 - (0.65 + 0.3))  # O's sheet, with the margin
+
+
+def test_only_the_nearest_memory_pieces_go_to_fine_at_once() -> None:
+    # MEMORY_FINE + 6 memory pieces crossing the sheet's top at the frontier, each a little
+    # farther from the robot than the last (a colour camera's memory holds thousands at the
+    # robot): the nearest MEMORY_FINE are carved down to FINE, the others to a quarter
+    n = MEMORY_FINE + 6
+    rows = [(i, 1.0 - 0.002 * i, 0.0, 0.0, 1.1 - 0.002 * i, 0.1, 0.35) for i in range(n)]
+    kept = _boxes(rows)
+    minima: dict[int, float] = {}
+
+    def recarve(boxes: np.ndarray, flags: int, offset: float, alpha: float, size_min: float) -> PieceSet:
+        for b in boxes:
+            minima[int(b[0])] = size_min
+        return _boxes([tuple(b) for b in boxes])
+
+    measure, _ = _measure(robot_x=1.5)
+    rules = _rules(0.3)
+    flags = np.full(n, MEMORY, dtype=np.int8)
+    refine_kept(kept, flags, rules.in_shells(kept.vertices), rules, np.array([[1.7, 0.05, 0.2, 0.2]]), 0.25, recarve, measure)
+    assert sorted(minima) == list(range(n))  # every piece was carved again
+    assert [minima[i] for i in range(MEMORY_FINE)] == [FINE] * MEMORY_FINE
+    assert all(math.isclose(minima[i], 0.25 * 0.35) for i in range(MEMORY_FINE, n))
 
 
 def test_unchanged_pieces_settle_and_a_real_crossing_keeps_its_sheet() -> None:

@@ -23,10 +23,11 @@ sheet keeps the sheet under it and the pieces inside the sheet within
   budget: pieces at the frontier are split down to ``FINE``, coarser behind it; pieces
   that cross a sheet's top within ``REACH_EXTRA + floor_shell_margin`` of F are split down
   to ``FINE`` everywhere; each round splits a piece to at most a quarter of its size
-  (the shadow memory's pieces, a few tens, carved at ``MEMORY_PIECE`` and left to this
-  step to split, down to ``FINE`` at once: at a quarter, a memory piece that seemed to
-  cross the floor sheet's top kept the sheet within ``floor_shell_margin`` of its whole
-  box, which only a second round removed), a
+  (the shadow memory's pieces that cross a sheet's top within ``BAND`` of F, carved at
+  ``MEMORY_PIECE`` and left to this step to split, down to ``FINE`` at once, the nearest
+  ``MEMORY_FINE``: at a quarter, a memory piece that seemed to cross the floor sheet's top
+  kept the sheet within ``floor_shell_margin`` of its whole box, which only a second round
+  removed), a
   piece that comes back unchanged is ``SETTLED``, at most ``ROUNDS`` rounds; the pieces
   farther than that reach from the first frontier keep their sheets and distance,
   measured once;
@@ -60,6 +61,7 @@ __all__ = [
     "FINE",
     "FRONT",
     "MEMORY",
+    "MEMORY_FINE",
     "OWN",
     "FRONT_SLACK",
     "REACH_EXTRA",
@@ -83,6 +85,11 @@ ROUNDS = 1
 """Refinement rounds per cycle. On the bench walk (loaded 2-core machine): 0 rounds,
 true minus reported distance 0.81 m in the median; 1 round 0.63 m; 4 rounds 0.59 m at twice
 the cost of one."""
+
+MEMORY_FINE = 64
+"""The most shadow-memory pieces crossing a sheet's top at the frontier that a round splits
+straight down to ``FINE`` (the nearest first; the rest, like every other piece, to a
+quarter of the largest)."""
 
 FRONT_SLACK = 0.3
 """How far [m] the frontier may come nearer between two cycles (a person's and the
@@ -309,20 +316,26 @@ def refine_kept(
         near = live & (size > 1.5 * np.maximum(FINE, alpha * (d - front))) & (d < front + BAND)
         sheet = live & cross & (size > 1.5 * FINE) & (d < front + reach)
         near &= ~sheet
-        if not (near.any() or sheet.any()):
+        # the shadow memory's pieces that cross a sheet's top at the frontier: to FINE now
+        fine = sheet & ((flags & MEMORY) > 0) & (d < front + BAND)
+        many = np.nonzero(fine)[0]
+        if len(many) > MEMORY_FINE:
+            # the nearest only (a colour camera's memory holds thousands at the robot)
+            fine[many[np.argsort(d[many], kind="stable")[MEMORY_FINE:]]] = False
+        sheet &= ~fine
+        if not (near.any() or sheet.any() or fine.any()):
             break
         rounds += 1
-        sel = near | sheet
+        sel = near | sheet | fine
         changed = sel & ~inside
         changed_lo, changed_hi = vlo[changed], vhi[changed]
         parts, out_flags = [kept.select(~sel)], [flags[~sel]]
-        for group, a in ((near, alpha), (sheet, 0.0)):
+        for group, a, to_fine in ((near, alpha, False), (sheet, 0.0, False), (fine, 0.0, True)):
             for f in np.unique(flags[group]):
                 idx = group & (flags == f)  # one call per flag value: its children inherit it
                 # a quarter of the largest size per round: the next round splits again
-                # only what still decides the distance or crosses a sheet's top; the
-                # memory's pieces (tens, grown at the carve's coarse size) straight to FINE
-                smin = FINE if f & MEMORY else max(FINE, 0.25 * float(size[idx].max()))
+                # only what still decides the distance or crosses a sheet's top
+                smin = FINE if to_fine else max(FINE, 0.25 * float(size[idx].max()))
                 new = recarve(kept.boxes[idx], int(f), front, a, smin)
                 parts.append(new)
                 out_flags.append(np.where(_same_rows(new.boxes, kept.boxes[idx]), f | SETTLED, f).astype(flags.dtype))
