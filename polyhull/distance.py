@@ -55,6 +55,11 @@ DISTANCE_BATCH = 8
 their distance), and each further batch is four times larger while some of its pieces can
 still be nearer than the best distance so far."""
 
+ROTATION_SLACK = 1e-6
+"""Added to a rotation change's spectral norm (computed from the trace) in a link's
+displacement bound: rotation matrices orthonormal only to machine precision round the
+trace by about 1e-15, which moves the norm by at most about 3e-8."""
+
 
 class DistanceResult(NamedTuple):
     """Minimum distance between the region and the robot.
@@ -273,13 +278,18 @@ class RobotDistanceModel:
         return d, np.array([result.nearest_points[0], result.nearest_points[1]], dtype=np.float64)
 
     def query_chunks(
-        self, chunks: ChunkedMesh, name: str, T: ArrayF64, first: int = -1
+        self, chunks: ChunkedMesh, name: str, T: ArrayF64, first: int = -1, bound: float = math.inf
     ) -> tuple[float, ArrayF64 | None, int]:
         """Distance, closest points (region, link) and the nearest chunk between link
         ``name`` at pose ``T`` and a chunked mesh: chunk ``first`` (e.g. the last nearest,
         when >= 0), then the chunks nearest first (by a lower bound of their distance: the
         larger of their box's distance to the link's box and to the link's ball) while they
-        can be nearer than the best so far; (0, None, chunk) on contact."""
+        can be nearer than the best so far; (0, None, chunk) on contact.
+
+        Only distances below ``bound`` are sought: when the link is at least ``bound``
+        away, the result is a lower bound of its distance, itself at least ``bound``
+        (the least of the distances measured and of the chunks' bounds not measured),
+        with no points (the chunk -1 when none was measured)."""
         R, t = T[:3, :3], T[:3, 3]
         box = self._corners[name]
         corners = box @ R.T + t
@@ -296,17 +306,22 @@ class RobotDistanceModel:
         gap = np.maximum(np.maximum(gap, own), ball)
         best, points, nearest = math.inf, None, -1
         order = np.argsort(gap, kind="stable")
-        if 0 <= first < len(chunks):
+        if 0 <= first < len(chunks) and gap[first] < bound:
             order = np.concatenate([[first], order[order != first]])
-        for j in order:
-            if gap[j] >= best:
+        unmeasured = math.inf  # the least bound of a chunk left out
+        for i, j in enumerate(order):
+            if gap[j] >= min(best, bound):
+                # the rest are sorted (the hint, first, was below the bound)
+                unmeasured = float(gap[order[i:]].min())
                 break
             d, pts = self._query(chunks.objects[int(j)], name, T)
             if d <= 0.0:
                 return 0.0, None, int(j)
             if d < best:
                 best, points, nearest = d, pts, int(j)
-        return best, points, nearest
+        if best < bound:
+            return best, points, nearest
+        return min(best, unmeasured), None, nearest
 
     def inner_points(self, T_world_links: Mapping[str, ArrayF64]) -> dict[str, ArrayF64]:
         """A point inside (or on) every link, world frame."""
@@ -524,9 +539,14 @@ def _nearer_by(d: float, points: ArrayF64 | None, tolerance: float) -> tuple[flo
 def _displacement(T0: ArrayF64, T1: ArrayF64, center: ArrayF64, radius: float) -> float:
     """An upper bound [m] of how far any point of a ball (link frame ``center``,
     ``radius``) moves from pose ``T0`` to pose ``T1``: the centre's displacement plus the
-    rotation's change (Frobenius norm, >= the spectral norm) times the radius."""
-    dc = (T1[:3, :3] - T0[:3, :3]) @ center + (T1[:3, 3] - T0[:3, 3])
-    return float(np.linalg.norm(dc) + np.linalg.norm(T1[:3, :3] - T0[:3, :3]) * radius)
+    rotation's change times the radius. The change ``R1 - R0`` of a rotation by an angle
+    theta has the spectral norm ``2 sin(theta / 2) = sqrt(3 - trace(R0^T R1))`` (the
+    Frobenius norm is sqrt(2) times that); ``ROTATION_SLACK`` covers the rounding of
+    rotations that are orthonormal only to machine precision."""
+    R0, R1 = T0[:3, :3], T1[:3, :3]
+    dc = (R1 - R0) @ center + (T1[:3, 3] - T0[:3, 3])
+    spectral = math.sqrt(max(3.0 - float(np.sum(R0 * R1)), 0.0)) + ROTATION_SLACK
+    return float(np.linalg.norm(dc) + min(spectral, float(np.linalg.norm(R1 - R0))) * radius)
 
 
 class StaticDistance:
@@ -550,7 +570,9 @@ class StaticDistance:
         self._model = model
         self._static = static if static is not None and len(static) else None
         self._contains = contains
-        self._last: dict[str, tuple[ArrayF64, float]] = {}  # pose and distance of each link
+        # each link's pose when last measured, its distance then (or a lower bound of it)
+        # and whether that was its distance
+        self._last: dict[str, tuple[ArrayF64, float, bool]] = {}
         self._nearest: dict[str, int] = {}  # each link's nearest chunk when last measured
 
     def reset(self) -> None:
@@ -571,7 +593,9 @@ class StaticCycle:
         self._T = T_world_links
         model = owner._model
         self._names = model.link_names
-        self._done: dict[str, tuple[float, ArrayF64 | None]] = {}
+        # per measured link: its distance (or, at or above the bound it was sought below,
+        # a lower bound of it), its points and that bound
+        self._done: dict[str, tuple[float, ArrayF64 | None, float]] = {}
         self.contact: DistanceResult | None = None
         self.queries = 0
         lower, upper = [], []
@@ -584,7 +608,7 @@ class StaticCycle:
             c, r = model._spheres[name]
             delta = _displacement(last[0], T_world_links[name], c, r)
             lower.append(max(last[1] - delta, 0.0))
-            upper.append(last[1] + delta)
+            upper.append(last[1] + delta if last[2] else math.inf)
         self._lower = np.array(lower, dtype=np.float64)
         self.upper = float(min(upper, default=math.inf))
         """An upper bound [m] of the static distance (inf when not known)."""
@@ -604,19 +628,25 @@ class StaticCycle:
         owner = self._owner
         if owner._static is None or best.distance <= 0.0:
             return best
+        tol = owner._static.tolerance
         for j in np.argsort(self._lower, kind="stable"):
             name = self._names[int(j)]
-            if name in self._done:
-                d, pts = self._done[name]
+            done = self._done.get(name)
+            if done is not None and (done[0] < done[2] or done[0] >= best.distance):
+                d, pts, _ = done  # exact, or a lower bound that cannot beat the best
             else:
                 if self._lower[j] >= best.distance:
                     break
+                # sought only below the best so far (plus the mesh's tolerance, which
+                # the result loses): farther, a lower bound is all the cycle needs
                 hint = owner._nearest.get(name, -1)
-                d, pts, owner._nearest[name] = owner._model.query_chunks(owner._static, name, self._T[name], hint)
-                d, pts = _nearer_by(d, pts, owner._static.tolerance)
+                d, pts, nearest = owner._model.query_chunks(owner._static, name, self._T[name], hint, best.distance + tol)
+                if nearest >= 0:
+                    owner._nearest[name] = nearest
+                d, pts = _nearer_by(d, pts, tol)
                 self.queries += 1
-                self._done[name] = (d, pts)
-                owner._last[name] = (np.array(self._T[name], dtype=np.float64), d)
+                self._done[name] = (d, pts, best.distance)
+                owner._last[name] = (np.array(self._T[name], dtype=np.float64), d, d < best.distance)
             if d <= 0.0:
                 return DistanceResult(0.0, None, name)
             if d < best.distance:

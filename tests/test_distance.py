@@ -202,6 +202,72 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     assert sum(counts[1:]) <= 19 * 2, counts
 
 
+def test_a_link_sought_below_a_bound_gets_its_distance_or_a_lower_bound(robot: Robot, model: RobotDistanceModel) -> None:
+    """``query_chunks`` with a bound: FCL's distance when the link is nearer than the
+    bound; farther, a value between the bound and the distance, with no points."""
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    from polyhull.distance import ChunkedMesh, manifold_to_fcl
+
+    region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
+    obj = manifold_to_fcl(region)
+    chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
+    assert chunks is not None
+    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    seen = {"exact": 0, "bound": 0}
+
+    @settings(max_examples=40, deadline=None)
+    @given(st.integers(0, 2**31 - 1), st.floats(0.0, 2.0), st.integers(-1, 3))
+    def check(seed: int, frac: float, hint: int) -> None:
+        q = np.random.default_rng(seed).uniform(lo, hi)
+        T = robot.link_transforms(q)
+        for name in model.link_names:
+            full, _ = model._query(obj, name, T[name])
+            bound = frac * full
+            d, pts, _ = model.query_chunks(chunks, name, T[name], hint, bound)
+            if full <= 0.0:
+                assert d == 0.0
+            elif full < bound:
+                assert d == pytest.approx(full, abs=1e-9)
+                assert pts is not None
+                seen["exact"] += 1
+            else:
+                assert bound - 1e-12 <= d <= full + 1e-9
+                assert pts is None
+                seen["bound"] += 1
+
+    check()
+    assert seen["exact"] and seen["bound"], seen
+
+
+def test_a_links_displacement_bound_holds_and_is_the_spectral_one() -> None:
+    """No point of a link's ball moves farther than ``_displacement`` between two poses,
+    and a pure rotation by theta gives ``2 sin(theta / 2)`` times the radius (the
+    Frobenius norm would give sqrt(2) times that)."""
+    from scipy.spatial.transform import Rotation
+
+    from polyhull.distance import _displacement
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        T0, T1 = np.eye(4), np.eye(4)
+        T0[:3, :3] = Rotation.random(random_state=rng.integers(1 << 30)).as_matrix()
+        T1[:3, :3] = Rotation.from_rotvec(rng.normal(size=3) * rng.uniform(0, 0.5)).as_matrix() @ T0[:3, :3]
+        T0[:3, 3], T1[:3, 3] = rng.normal(size=3), rng.normal(size=3)
+        c, r = rng.normal(size=3) * 0.3, float(rng.uniform(0.05, 0.6))
+        bound = _displacement(T0, T1, c, r)
+        dirs = rng.normal(size=(500, 3))
+        p = c + r * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+        moved = np.linalg.norm((p @ T1[:3, :3].T + T1[:3, 3]) - (p @ T0[:3, :3].T + T0[:3, 3]), axis=1)
+        assert moved.max() <= bound + 1e-12
+    theta = 0.3
+    T1 = np.eye(4)
+    T1[:3, :3] = Rotation.from_rotvec([0.0, 0.0, theta]).as_matrix()
+    assert _displacement(np.eye(4), T1, np.zeros(3), 1.0) == pytest.approx(2 * math.sin(theta / 2), abs=1e-5)
+
+
 def test_pruned_piece_distance_equals_all_pieces(robot: Robot, model: RobotDistanceModel) -> None:
     """Many pieces: measuring only those whose lower bound (link ball, link box) can beat
     the best so far, in batches nearest first, gives FCL's distance to all of them."""
