@@ -130,6 +130,21 @@ def test_any_overlap_within_reach_is_brute_force(seed: int, n: int, m: int, reac
     assert np.array_equal(got[~doubt], expected[~doubt])
 
 
+def test_a_box_with_a_non_finite_coordinate_may_meet_any_query() -> None:
+    """A query or a box with a NaN or infinite coordinate: nothing is known of it, so it is
+    taken to meet (the rules then keep more)."""
+    lo, hi = np.zeros((3, 3)), np.ones((3, 3))
+    far = np.full((1, 3), 10.0)
+    bad = lo.copy()
+    bad[1, 2] = np.nan
+    got = any_overlap(bad, hi, far, far + 1.0)
+    assert got.tolist() == [False, True, False]
+    nan_box = far.copy()
+    nan_box[0, 0] = np.nan
+    assert any_overlap(lo, hi, nan_box, far + 1.0).all()
+    assert any_near_upright(lo, hi, np.concatenate([far, nan_box]), np.concatenate([far, far]) + 1.0, 0.3).all()
+
+
 def test_any_overlap_reach_is_a_ball() -> None:
     """Two unit boxes apart by 0.3 m along each axis: 0.52 m apart (not 0.3)."""
     lo, hi = np.zeros((1, 3)), np.ones((1, 3))

@@ -1,9 +1,10 @@
 """Compiled queries on axis-aligned boxes: box/box overlaps and box/triangle meetings.
 
 The dynamic rules ask two questions of this cycle's pieces through their bounding boxes:
-which boxes overlap (the components, :func:`overlap_groups`) and which boxes meet any of
-another set (a margin around pieces, the previous cycle's components,
-:func:`any_overlap`), both by sweep and prune. Bounding boxes contain their pieces, so
+which boxes overlap (the components, :func:`overlap_groups`, by sweep and prune) and
+which boxes meet any of another set (a margin around pieces, the previous cycle's
+components, :func:`any_overlap`, the other set binned in a uniform grid on the x, y
+plane: a query tests the boxes of the cells its reach meets). Bounding boxes contain their pieces, so
 both answers are supersets of the pieces' own: more grouping and more meeting, which only
 keeps more. The cost follows the number of boxes and of overlapping pairs, not the size of
 the cell.
@@ -212,41 +213,81 @@ def group_bounds(labels: np.ndarray, lo: ArrayF64, hi: ArrayF64, K: int) -> tupl
     return clo, chi
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _bin(x, x0, cell, n):  # pragma: no cover - compiled
+    """The grid column (or row) of coordinate ``x``, clamped to [0, n - 1]."""
+    f = (x - x0) / cell
+    if f <= 0.0:
+        return 0
+    if f >= n - 1:
+        return n - 1
+    return int(f)
+
+
 @nb.njit(cache=True, nogil=True)
-def _any(qlo, qhi, blo, bhi, order, keys, extent, reach, dims, out):  # pragma: no cover - compiled
-    """Boxes sorted by their x minimum (``keys``): a query's candidates start within
-    ``extent`` before it. The boxes starting inside the query's x range grown by ``reach``
-    (which meet it along x) are tested first, then those before it, nearest first: hits
-    come early. A candidate meets the query when it overlaps the query's box grown by
-    ``reach`` on every side (the sweep's test) and their Euclidean gap over the first
-    ``dims`` axes (3, or 2: in x, y only) is at most ``reach``."""
-    n = order.shape[0]
+def _bin_boxes(blo, bhi, x0, y0, cell, nx, ny):  # pragma: no cover - compiled
+    """The boxes binned in a grid of ``nx`` x ``ny`` square cells of side ``cell`` on the x,
+    y plane from (``x0``, ``y0``) (the outer cells extend to infinity): (start
+    (nx ny + 1,), items) such that ``items[start[c]:start[c + 1]]`` are the boxes whose x,
+    y extent meets cell ``c = iy nx + ix``."""
+    m = blo.shape[0]
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    for j in range(m):
+        ix0, ix1 = _bin(blo[j, 0], x0, cell, nx), _bin(bhi[j, 0], x0, cell, nx)
+        iy0, iy1 = _bin(blo[j, 1], y0, cell, ny), _bin(bhi[j, 1], y0, cell, ny)
+        for iy in range(iy0, iy1 + 1):
+            for ix in range(ix0, ix1 + 1):
+                start[iy * nx + ix + 1] += 1
+    for c in range(nx * ny):
+        start[c + 1] += start[c]
+    items = np.empty(start[nx * ny], dtype=np.int64)
+    fill = start[:-1].copy()
+    for j in range(m):
+        ix0, ix1 = _bin(blo[j, 0], x0, cell, nx), _bin(bhi[j, 0], x0, cell, nx)
+        iy0, iy1 = _bin(blo[j, 1], y0, cell, ny), _bin(bhi[j, 1], y0, cell, ny)
+        for iy in range(iy0, iy1 + 1):
+            for ix in range(ix0, ix1 + 1):
+                c = iy * nx + ix
+                items[fill[c]] = j
+                fill[c] += 1
+    return start, items
+
+
+@nb.njit(cache=True, nogil=True)
+def _any(qlo, qhi, blo, bhi, start, items, x0, y0, cell, nx, ny, reach, dims, seen, out):  # pragma: no cover - compiled
+    """For each query box: does a box (binned by :func:`_bin_boxes`) meet it? The
+    candidates are the boxes of the cells the query's box grown by ``reach`` meets (a box
+    that meets the grown query meets one of them), each tested once (``seen`` (M,), -1 at
+    first, holds the last query that tested a box). A candidate meets the query when it
+    overlaps the query's box grown by ``reach`` on every side and their Euclidean gap
+    over the first ``dims`` axes (3, or 2: in x, y only) is at most ``reach``."""
     r2 = reach * reach
     for i in range(qlo.shape[0]):
         l0, l1, l2 = qlo[i, 0] - reach, qlo[i, 1] - reach, qlo[i, 2] - reach
         h0, h1, h2 = qhi[i, 0] + reach, qhi[i, 1] + reach, qhi[i, 2] + reach
-        mid = np.searchsorted(keys, l0, side="left")
+        ix0, ix1 = _bin(l0, x0, cell, nx), _bin(h0, x0, cell, nx)
+        iy0, iy1 = _bin(l1, y0, cell, ny), _bin(h1, y0, cell, ny)
+        # the cell of the query's centre first (hits come early there), then the rest
+        cx = _bin(0.5 * (qlo[i, 0] + qhi[i, 0]), x0, cell, nx)
+        cy = _bin(0.5 * (qlo[i, 1] + qhi[i, 1]), y0, cell, ny)
         hit = False
-        for a in range(mid, n):
-            if keys[a] > h0:
-                break
-            j = order[a]
-            if blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
-                if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2:
-                    hit = True
-                    break
-        if not hit:
-            lim = l0 - extent
-            for a in range(mid - 1, -1, -1):
-                if keys[a] < lim:
-                    break
-                j = order[a]
-                if bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
+        for k in range(-1, (iy1 - iy0 + 1) * (ix1 - ix0 + 1)):
+            if k < 0:
+                c = cy * nx + cx
+            else:
+                c = (iy0 + k // (ix1 - ix0 + 1)) * nx + ix0 + k % (ix1 - ix0 + 1)
+            for a in range(start[c], start[c + 1]):
+                j = items[a]
+                if seen[j] == i:
+                    continue
+                seen[j] = i
+                if blo[j, 0] <= h0 and bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
                     if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2:
                         hit = True
                         break
-        if hit:
-            out[i] = True
+            if hit:
+                break
+        out[i] = hit
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -283,41 +324,48 @@ def any_overlap(
     bhi = np.ascontiguousarray(bhi, dtype=np.float64)
     qlo = np.ascontiguousarray(qlo, dtype=np.float64)
     qhi = np.ascontiguousarray(qhi, dtype=np.float64)
+    # nothing is known of a box with a non-finite coordinate: it may meet anything
+    finite = np.asarray(np.isfinite(qlo).all(axis=1) & np.isfinite(qhi).all(axis=1), dtype=bool)
+    if not (np.isfinite(blo).all() and np.isfinite(bhi).all()) or not finite.any():
+        out[:] = True
+        return out
+    glo, ghi = qlo[finite].min(axis=0) - reach, qhi[finite].max(axis=0) + reach
     if len(blo) >= BOUNDS_FILTER_MIN:
         # only the boxes that meet the queries' bounds (grown by the reach) can meet a
-        # query: the queries often lie in one part of the boxes (the pieces in the floor's
-        # sheet, under a person's pieces), and a query that meets none scans every box
-        # starting in its window
-        glo, ghi = qlo.min(axis=0) - reach, qhi.max(axis=0) + reach
+        # query (the queries often lie in one part of the boxes: the pieces in the
+        # floor's sheet, under a person's pieces)
         near = np.all((blo <= ghi) & (bhi >= glo), axis=1)
         if not near.all():
             blo, bhi = np.ascontiguousarray(blo[near]), np.ascontiguousarray(bhi[near])
             if len(blo) == 0:
+                out[~finite] = True
                 return out
-    # A query scans the boxes starting within the longest box's extent before it: the few
-    # long boxes are scanned in a pass of their own, so they do not widen every scan.
-    ext = bhi[:, 0] - blo[:, 0]
-    k = (9 * (len(ext) - 1)) // 10
-    cut = float(np.partition(ext, k)[k])  # about the 90th percentile (a split, not a statistic)
-    passes = []
-    for part in (np.nonzero(ext <= cut)[0], np.nonzero(ext > cut)[0]):
-        if len(part) == 0:
-            continue
-        order = part[np.argsort(blo[part, 0], kind="stable")]
-        passes.append((order, np.ascontiguousarray(blo[order, 0]), float(ext[part].max())))
+    # the boxes binned in a grid on the x, y plane over the queries' reach (cells at
+    # least the boxes' median width and half the reach; the boxes beyond the grid fall
+    # into its outer cells, which reach to infinity)
+    x0, y0 = float(max(glo[0], blo[:, 0].min())), float(max(glo[1], blo[:, 1].min()))
+    side = np.maximum(np.minimum(ghi[:2], bhi[:, :2].max(axis=0)) - (x0, y0), 0.0)
+    ext = float(np.median(bhi[:, :2] - blo[:, :2]))
+    cell = max(ext, float(reach) / 2.0, float(np.sqrt(side[0] * side[1] / GRID_CELLS)), 1e-3)
+    nx, ny = (int(x) for x in np.clip(np.ceil(side / cell), 1, GRID_CELLS))
+    start, items = _bin_boxes(blo, bhi, x0, y0, cell, nx, ny)
+    if not finite.all():  # (answered below)
+        qlo, qhi = np.where(finite[:, None], qlo, 0.0), np.where(finite[:, None], qhi, 0.0)
 
     def run(sl: slice) -> np.ndarray:
-        o = np.zeros(len(range(*sl.indices(len(qlo)))), dtype=bool)
         ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
-        for order, keys, extent in passes:
-            _any(ql, qh, blo, bhi, order, keys, extent, float(reach), 2 if upright else 3, o)
+        o = np.zeros(len(ql), dtype=bool)
+        seen = np.full(len(blo), -1, dtype=np.int64)
+        _any(ql, qh, blo, bhi, start, items, x0, y0, cell, nx, ny, float(reach), 2 if upright else 3, seen, o)
         return o
 
     if pool is None or len(qlo) < ANY_PARALLEL_MIN:
-        return run(slice(None))
-    # interleaved halves: neighbouring queries (similar work) go to both threads
-    even, odd = share(pool, run, (slice(0, None, 2), slice(1, None, 2)))
-    out[0::2], out[1::2] = even, odd
+        out = run(slice(None))
+    else:
+        # interleaved halves: neighbouring queries (similar work) go to both threads
+        even, odd = share(pool, run, (slice(0, None, 2), slice(1, None, 2)))
+        out[0::2], out[1::2] = even, odd
+    out[~finite] = True
     return out
 
 
@@ -335,6 +383,10 @@ def any_near_upright(
 
 ANY_PARALLEL_MIN = 512
 """Fewest queries :func:`any_overlap` splits over two threads."""
+
+GRID_CELLS = 16384
+"""Most cells of :func:`any_overlap`'s grid (its cells are at least the boxes' median
+width and half the reach)."""
 
 BOUNDS_FILTER_MIN = 32
 """Fewest boxes :func:`any_overlap` first filters by the queries' bounds."""
