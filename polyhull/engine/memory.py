@@ -198,6 +198,8 @@ class ShadowMemory:
             k = cam.intrinsics
             beyond = cam.near if self._front else max(cam.near, raster.back_min)
             rects, zr = box_rects(lo, hi, cam.T_camera_world, (k.fx, k.fy, k.cx, k.cy), beyond, raster.rect)
+            if not len(rects):
+                return None  # no seed box here: no segment (the images are reset above)
             # the robot's rectangle, widened to whole tiles (the same tiles as the image's)
             H, W = cam.shape
             tu0, tv0 = (u0 // tile) * tile, (v0 // tile) * tile
