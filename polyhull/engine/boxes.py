@@ -4,9 +4,9 @@ The dynamic rules ask two questions of this cycle's pieces through their boundin
 which boxes overlap (the components, :func:`overlap_groups`, by sweep and prune) and
 which boxes meet any of another set (a margin around pieces, the previous cycle's
 components, :func:`any_overlap`, the other set binned in a uniform grid on the x, y
-plane: a query tests the boxes of the cells its reach meets). Bounding boxes contain their pieces, so
-both answers are supersets of the pieces' own: more grouping and more meeting, which only
-keeps more. The cost follows the number of boxes and of overlapping pairs, not the size of
+plane: a query tests the boxes of the cells its reach meets). Bounding boxes contain
+their pieces, so both answers are supersets of the pieces' own: more grouping and more
+meeting, which only keeps more. The cost follows the number of boxes and of overlapping pairs, not the size of
 the cell.
 
 A third question asks whether boxes meet a fixed triangle mesh (the surface of the static
