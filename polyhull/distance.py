@@ -83,6 +83,47 @@ def _bvh(vertices: ArrayF64, faces: np.ndarray) -> fcl.BVHModel:
     return model
 
 
+@nb.njit(cache=True, nogil=True)
+def _chunk_bounds(lo, hi, box, T, c, r):  # pragma: no cover - compiled
+    """(K,) lower bounds of the distance between chunks (boxes ``lo``, ``hi`` (K, 3),
+    world frame) and a link at pose ``T`` (its link-frame box ``box`` (8, 3) corners, the
+    least first and the greatest last, and its ball ``c``, ``r``): the largest of the
+    separations along the world axes (the link's box in the world), along the link's
+    axes (each chunk's box in the link frame; each an orthonormal basis, so the root of
+    the summed squares is a lower bound) and to the link's ball."""
+    blo = np.full(3, np.inf)
+    bhi = np.full(3, -np.inf)
+    for m in range(8):
+        for a in range(3):
+            x = T[a, 0] * box[m, 0] + T[a, 1] * box[m, 1] + T[a, 2] * box[m, 2] + T[a, 3]
+            blo[a] = min(blo[a], x)
+            bhi[a] = max(bhi[a], x)
+    cw = np.empty(3)
+    for a in range(3):
+        cw[a] = T[a, 0] * c[0] + T[a, 1] * c[1] + T[a, 2] * c[2] + T[a, 3]
+    out = np.empty(lo.shape[0])
+    for k in range(lo.shape[0]):
+        world = 0.0
+        ball = 0.0
+        own = 0.0
+        for a in range(3):
+            s = max(max(lo[k, a] - bhi[a], blo[a] - hi[k, a]), 0.0)
+            world += s * s
+            s = max(max(lo[k, a] - cw[a], cw[a] - hi[k, a]), 0.0)
+            ball += s * s
+        for b in range(3):
+            # the chunk's centre and half extent along the link's axis b
+            centre = 0.0
+            half = 0.0
+            for a in range(3):
+                centre += 0.5 * (lo[k, a] + hi[k, a]) * T[a, b] - T[a, 3] * T[a, b]
+                half += 0.5 * (hi[k, a] - lo[k, a]) * abs(T[a, b])
+            s = max(max(centre - half - box[7, b], box[0, b] - centre - half), 0.0)
+            own += s * s
+        out[k] = max(max(np.sqrt(world), np.sqrt(own)), np.sqrt(ball) - r)
+    return out
+
+
 STATIC_CHUNK = 0.5
 """Edge [m] of the grid cells that split a large static mesh into chunks
 (:class:`ChunkedMesh`)."""
@@ -290,35 +331,29 @@ class RobotDistanceModel:
         away, the result is a lower bound of its distance, itself at least ``bound``
         (the least of the distances measured and of the chunks' bounds not measured),
         with no points (the chunk -1 when none was measured)."""
-        R, t = T[:3, :3], T[:3, 3]
-        box = self._corners[name]
-        corners = box @ R.T + t
-        blo, bhi = corners.min(axis=0), corners.max(axis=0)
-        # separations along the world axes, then along the link's axes (each an orthonormal
-        # basis: the root of the summed squares is a lower bound of the distance)
-        gap = np.linalg.norm(np.maximum(np.maximum(chunks.lo - bhi, blo - chunks.hi), 0.0), axis=1)
-        centre = 0.5 * (chunks.lo + chunks.hi) @ R - t @ R  # chunk centres in the link frame
-        half = 0.5 * (chunks.hi - chunks.lo) @ np.abs(R)
-        own = np.linalg.norm(np.maximum(np.maximum(centre - half - box[7], box[0] - centre - half), 0.0), axis=1)
+        if len(chunks) == 0:
+            return math.inf, None, -1
         c, r = self._spheres[name]
-        cw = R @ c + t
-        ball = np.linalg.norm(np.maximum(np.maximum(chunks.lo - cw, cw - chunks.hi), 0.0), axis=1) - r
-        gap = np.maximum(np.maximum(gap, own), ball)
+        gap = _chunk_bounds(chunks.lo, chunks.hi, self._corners[name], np.ascontiguousarray(T, dtype=np.float64), c, r)
         best, points, nearest = math.inf, None, -1
-        order = np.argsort(gap, kind="stable")
+        # nearest first (the least bound; ties: the lower index, as a stable sort), the hint
+        # first when it is below the bound; the chunks measured are marked +inf
         if 0 <= first < len(chunks) and gap[first] < bound:
-            order = np.concatenate([[first], order[order != first]])
+            j = first
+        else:
+            j = int(np.argmin(gap))
         unmeasured = math.inf  # the least bound of a chunk left out
-        for i, j in enumerate(order):
+        while True:
             if gap[j] >= min(best, bound):
-                # the rest are sorted (the hint, first, was below the bound)
-                unmeasured = float(gap[order[i:]].min())
+                unmeasured = float(gap[j])
                 break
-            d, pts = self._query(chunks.objects[int(j)], name, T)
+            gap[j] = math.inf
+            d, pts = self._query(chunks.objects[j], name, T)
             if d <= 0.0:
-                return 0.0, None, int(j)
+                return 0.0, None, j
             if d < best:
-                best, points, nearest = d, pts, int(j)
+                best, points, nearest = d, pts, j
+            j = int(np.argmin(gap))
         if best < bound:
             return best, points, nearest
         return min(best, unmeasured), None, nearest

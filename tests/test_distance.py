@@ -242,6 +242,29 @@ def test_a_link_sought_below_a_bound_gets_its_distance_or_a_lower_bound(robot: R
     assert seen["exact"] and seen["bound"], seen
 
 
+def test_each_chunks_bound_is_below_its_fcl_distance(robot: Robot, model: RobotDistanceModel) -> None:
+    """The chunks' bounds that order and stop ``query_chunks`` never exceed FCL's distance
+    between the link and the chunk (random poses, every link and chunk), and the nearest
+    chunk's bound is tight enough to be useful (within the chunk's diagonal)."""
+    from polyhull.distance import ChunkedMesh, _chunk_bounds
+
+    region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
+    chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
+    assert chunks is not None
+    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
+    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        T = robot.link_transforms(rng.uniform(lo, hi))
+        for name in model.link_names:
+            c, r = model._spheres[name]
+            bounds = _chunk_bounds(chunks.lo, chunks.hi, model._corners[name], T[name], c, r)
+            dists = np.array([model._query(obj, name, T[name])[0] for obj in chunks.objects])
+            assert np.all(bounds <= dists + 1e-9), (name, float((bounds - dists).max()))
+            k = int(np.argmin(dists))
+            assert dists[k] - bounds[k] <= float(np.linalg.norm(chunks.hi[k] - chunks.lo[k])) + 1e-9
+
+
 def test_a_links_displacement_bound_holds_and_is_the_spectral_one() -> None:
     """No point of a link's ball moves farther than ``_displacement`` between two poses,
     and a pure rotation by theta gives ``2 sin(theta / 2)`` times the radius (the
