@@ -224,9 +224,13 @@ def piece_volumes(boxes: ArrayF64, stack: CameraStack) -> ArrayF64:
 
 
 @nb.njit(cache=True, nogil=True)
-def _range(mins, maxs, image, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pragma: no cover - compiled
+def _range(mins, maxs, image, offsets, shapes, nlev, pu0, pu1, pv0, pv1, zlo, zhi):  # pragma: no cover - compiled
     """(min, max) of a pyramid over a superset of pixel box [pu0, pu1] x [pv0, pv1]; level 0
-    is the image (at ``offsets[0]`` in ``image``)."""
+    is the image (at ``offsets[0]`` in ``image``). The caller only asks whether a piece
+    spanning depths [zlo, zhi] is covered (``zhi < min``) and maybe freed (``zlo < max``):
+    once some row has shown it neither covered nor decided free (``min <= zhi`` and
+    ``max > zlo``), the rest cannot change the answers and is not read (the values
+    returned then bound the box's true ones by the same answers)."""
     lev = 0
     while lev < nlev - 1 and (((pu1 >> lev) - (pu0 >> lev)) >= 8 or ((pv1 >> lev) - (pv0 >> lev)) >= 8):
         lev += 1
@@ -241,12 +245,16 @@ def _range(mins, maxs, image, offsets, shapes, nlev, pu0, pu1, pv0, pv1):  # pra
                 x = image[base + c]
                 lo = min(lo, x)
                 hi = max(hi, x)
+            if lo <= zhi and hi > zlo:
+                break
         return lo, hi
     for r in range(pv0 >> lev, (pv1 >> lev) + 1):
         base = off + r * w
         for c in range(pu0 >> lev, (pu1 >> lev) + 1):
             lo = min(lo, mins[base + c])
             hi = max(hi, maxs[base + c])
+        if lo <= zhi and hi > zlo:
+            break
     return lo, hi
 
 
@@ -369,7 +377,7 @@ def _carve(
                 continue  # outside i's image: not seen
             inside = pu0 >= 0 and pv0 >= 0 and pu1 <= W - 1 and pv1 <= H - 1
             ru0, ru1, rv0, rv1 = max(pu0, 0), min(pu1, W - 1), max(pv0, 0), min(pv1, H - 1)
-            lo, hi = _range(mins, maxs, pyr_image, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
+            lo, hi = _range(mins, maxs, pyr_image, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1, zmin, zmax)
             if inside and zmin > near[i] and zmax < lo:
                 n_cover += 1
                 if n_cover >= k_of_n:
@@ -377,14 +385,14 @@ def _carve(
             elif zmin < hi:
                 n_maybe += 1
             if m_test:
-                lo2, hi2 = _range(mins2, maxs2, pyr_image2, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
+                lo2, hi2 = _range(mins2, maxs2, pyr_image2, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1, zmin, zmax)
                 if inside and zmin > near[i] and zmax < lo2:
                     n_cover2 += 1
                     if n_cover2 >= k_of_n:
                         break  # enough cameras would see it free with the robot: not in M
                 elif zmin < hi2:
                     n_maybe2 += 1
-                lo3, hi3 = _range(mins3, maxs3, pyr_image3, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1)
+                lo3, hi3 = _range(mins3, maxs3, pyr_image3, pyr_off[i], pyr_shape[i], nlev[i], ru0, ru1, rv0, rv1, zmin, zmax)
                 if inside and zmin > near[i] and zmax < lo3:
                     n_cover3 += 1
                 elif zmin < hi3:
