@@ -307,9 +307,11 @@ def refine_kept(
         return np.concatenate([far_sheets, near_sheets]), res
 
     front = front0
+    d: ArrayF64 | None = lower  # the pieces' bounds (None once a round has changed the pieces)
     while rounds < ROUNDS:
         v = kept.vertices
-        d = distance_lower_bounds(v, spheres)
+        if d is None:
+            d = distance_lower_bounds(v, spheres)
         vlo, vhi = vertex_bounds(v)
         size = (vhi - vlo).max(axis=1)
         live = movable & ~cut & ((flags & SETTLED) == 0)
@@ -341,6 +343,7 @@ def refine_kept(
                 out_flags.append(np.where(_same_rows(new.boxes, kept.boxes[idx]), f | SETTLED, f).astype(flags.dtype))
         n_rest = int((~sel).sum())
         kept = PieceSet.concat(parts)
+        d = None
         flags = np.concatenate(out_flags)
         children = kept.vertices[n_rest:]
         inside = np.concatenate([inside[~sel], rules.in_shells(children) if rules.too_thin else np.zeros(len(children), bool)])
