@@ -145,6 +145,30 @@ def test_a_box_with_a_non_finite_coordinate_may_meet_any_query() -> None:
     assert any_near_upright(lo, hi, np.concatenate([far, nan_box]), np.concatenate([far, far]) + 1.0, 0.3).all()
 
 
+def test_the_box_the_last_query_met_counts_only_if_it_meets_the_next() -> None:
+    """Consecutive queries that alternate between meeting one box and missing it only
+    along z, or only by the ball's reach along a diagonal (the box the last hit found is
+    tried first): each answer is the brute-force one."""
+    blo, bhi = np.array([[0.0, 0.0, 0.0]]), np.array([[1.0, 1.0, 1.0]])
+    qlo = np.array([
+        [0.2, 0.2, 0.5],  # inside
+        [0.2, 0.2, 1.5],  # above by 0.4, same x, y
+        [0.2, 0.2, 0.9],  # inside again
+        [1.25, 1.25, 0.5],  # 0.25 m off along x and y: 0.354 m away, within the cube's 0.3
+        [1.2, 0.2, 0.5],  # 0.2 m off along x
+        [0.2, 0.2, -0.6],  # below by 0.5
+    ])
+    qhi = qlo + 0.1
+    reach = 0.3
+    gaps = np.maximum(np.maximum(blo[None] - qhi[:, None], qlo[:, None] - bhi[None]), 0.0)
+    ball = (np.linalg.norm(gaps, axis=2) <= reach).any(axis=1)
+    upright = ((np.linalg.norm(gaps[..., :2], axis=2) <= reach) & (gaps[..., 2] <= reach)).any(axis=1)
+    assert ball.tolist() == [True, False, True, False, True, False]
+    assert any_overlap(qlo, qhi, blo, bhi, reach=reach).tolist() == ball.tolist()
+    assert any_near_upright(qlo, qhi, blo, bhi, reach).tolist() == upright.tolist()
+    assert any_overlap(qlo, qhi, blo, bhi).tolist() == [True, False, True, False, False, False]
+
+
 def test_any_overlap_reach_is_a_ball() -> None:
     """Two unit boxes apart by 0.3 m along each axis: 0.52 m apart (not 0.3)."""
     lo, hi = np.zeros((1, 3)), np.ones((1, 3))

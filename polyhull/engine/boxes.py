@@ -260,8 +260,12 @@ def _any(qlo, qhi, blo, bhi, start, items, x0, y0, cell, nx, ny, reach, dims, se
     that meets the grown query meets one of them), each tested once (``seen`` (M,), -1 at
     first, holds the last query that tested a box). A candidate meets the query when it
     overlaps the query's box grown by ``reach`` on every side and their Euclidean gap
-    over the first ``dims`` axes (3, or 2: in x, y only) is at most ``reach``."""
+    over the first ``dims`` axes (3, or 2: in x, y only) is at most ``reach``. The box the
+    last hit found is tested first: consecutive queries (a column's slabs, a tile's
+    neighbours) mostly meet the same box, which the grid's cells may list after many that
+    do not meet them along z (the cells are columns in x, y)."""
     r2 = reach * reach
+    last = -1
     for i in range(qlo.shape[0]):
         l0, l1, l2 = qlo[i, 0] - reach, qlo[i, 1] - reach, qlo[i, 2] - reach
         h0, h1, h2 = qhi[i, 0] + reach, qhi[i, 1] + reach, qhi[i, 2] + reach
@@ -270,6 +274,9 @@ def _any(qlo, qhi, blo, bhi, start, items, x0, y0, cell, nx, ny, reach, dims, se
         # the cell of the query's centre first (hits come early there), then the rest
         cx = _bin(0.5 * (qlo[i, 0] + qhi[i, 0]), x0, cell, nx)
         cy = _bin(0.5 * (qlo[i, 1] + qhi[i, 1]), y0, cell, ny)
+        if last >= 0 and _meets(qlo, qhi, blo, bhi, i, last, l0, l1, l2, h0, h1, h2, reach, r2, dims):
+            out[i] = True
+            continue
         hit = False
         for k in range(-1, (iy1 - iy0 + 1) * (ix1 - ix0 + 1)):
             if k < 0:
@@ -281,13 +288,23 @@ def _any(qlo, qhi, blo, bhi, start, items, x0, y0, cell, nx, ny, reach, dims, se
                 if seen[j] == i:
                     continue
                 seen[j] = i
-                if blo[j, 0] <= h0 and bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
-                    if reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2:
-                        hit = True
-                        break
+                if _meets(qlo, qhi, blo, bhi, i, j, l0, l1, l2, h0, h1, h2, reach, r2, dims):
+                    hit = True
+                    last = j
+                    break
             if hit:
                 break
         out[i] = hit
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _meets(qlo, qhi, blo, bhi, i, j, l0, l1, l2, h0, h1, h2, reach, r2, dims):  # pragma: no cover - compiled
+    """Whether box j meets query i: it overlaps the query's box grown by ``reach``
+    ([l0, h0] x [l1, h1] x [l2, h2]) and their gap over the first ``dims`` axes is at
+    most ``reach`` (``r2`` its square)."""
+    if blo[j, 0] <= h0 and bhi[j, 0] >= l0 and blo[j, 1] <= h1 and bhi[j, 1] >= l1 and blo[j, 2] <= h2 and bhi[j, 2] >= l2:
+        return reach == 0.0 or _gap2(qlo, qhi, blo, bhi, i, j, dims) <= r2
+    return False
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
