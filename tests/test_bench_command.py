@@ -46,6 +46,21 @@ def test_bench_json_timings(bench_json: dict) -> None:  # type: ignore[type-arg]
     assert w["cameras"] == 4 and w["resolution"] == [320, 240] and w["cycles"] == 2 and w["warmup"] == 1
 
 
+def test_bench_repeat_pools_passes_of_the_same_walk(bench_json: dict) -> None:  # type: ignore[type-arg]
+    """--repeat 2: both passes' cycles pooled, each pass's median reported, and the reset
+    monitor's second pass gives the one-pass run's distances (the same frames, no history)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = _run(*SMALL[:4], "--empty-cycles", "0", "--tightness-samples", "0", *SMALL[-2:], "--repeat", "2", "--json")
+    assert code == 0, err.getvalue()
+    result = json.loads(out.getvalue())
+    assert result["workload"]["repeat"] == 2
+    assert len(result["cycle_ms"]["pass_medians"]) == 2 and all(ms > 0 for ms in result["cycle_ms"]["pass_medians"])
+    assert all(n == 4 for n in result["stages_cycles"].values())  # 2 timed cycles a pass
+    assert result["person"]["distance_m"] == bench_json["person"]["distance_m"]
+    assert isinstance(result["machine"]["cpu"], str) and result["machine"]["logical_cpus"] >= 1
+
+
 def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ignore[type-arg]
     person = bench_json["person"]
     assert person["cycles"] == 3  # warm-up and timed cycles of the walk
@@ -146,6 +161,8 @@ def test_bench_camera_ring_runs(capsys: pytest.CaptureFixture[str]) -> None:
         (("--pace", "nan"), "--pace"),
         (("--pace", "2000"), "--pace"),
         (("--spin",), "--spin"),
+        (("--repeat", "0"), "--repeat"),
+        (("--repeat", "51"), "--repeat"),
     ],
 )
 def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pytest.CaptureFixture[str]) -> None:

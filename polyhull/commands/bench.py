@@ -24,7 +24,11 @@ Five parts, on one monitor (the static model is built once):
 
 With ``--pace HZ`` the walk's cycles start at that rate, the thread sleeping between them as
 a controller waiting for its frames does (by default they run back to back): on a machine
-whose idle CPU wakes up slowly, the cycles take longer than back to back.
+whose idle CPU wakes up slowly, the cycles take longer than back to back. With ``--repeat N``
+the walk is timed N times on the same frames (the monitor reset in between) and its cycles
+pooled; each pass's median is reported too, as the spread between passes shows how much of
+a difference between two runs is the machine's (on the 2-core virtual machine the README's
+figures come from, passes of one run differ by up to a third, and days by a factor of two).
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ import argparse
 import contextlib
 import json
 import math
+import os
+import platform
 import re
 import sys
 import time
@@ -68,6 +74,7 @@ MAX_SIDE = 4096  # [px]
 MIN_SIDE = 16  # [px]
 MAX_SAMPLES = 10_000_000
 MAX_PACE = 1000.0  # [Hz]
+MAX_REPEAT = 50
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -107,6 +114,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--resolution", default=None, metavar="WxH", help="rescale every camera's intrinsics to W x H px"
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor effects and the samples (default 0)")
+    p.add_argument(
+        "--repeat", type=int, default=1, metavar="N",
+        help=f"time the walk N times on the same frames, the monitor reset in between, and pool the "
+        f"cycles (default 1, at most {MAX_REPEAT}); the accuracy checks use the last pass",
+    )
     p.add_argument(
         "--pace", type=float, default=None, metavar="HZ",
         help="run the walk's cycles at HZ, sleeping until each cycle's tick as a controller "
@@ -221,6 +233,7 @@ def run_bench(
     peers_options: Any = None,
     pace: float | None = None,
     spin: bool = False,
+    repeat: int = 1,
 ) -> dict[str, Any]:
     """Run the benchmark and its checks; return the figures (see the module docstring).
 
@@ -246,7 +259,21 @@ def run_bench(
             monitor, lambda frames, points: exact_hull(monitor, frames, points),
             options=peers_options, samples=tightness_samples or 100_000, seed=seed,
         )
-    stages, first, verdicts = _time_walk(monitor, inputs, warmup, min(peers, cycles), comparison, progress, pace, spin)
+    stages: dict[str, list[float]] = {}
+    pass_medians = []
+    first: list[float] = []
+    for k in range(max(int(repeat), 1)):
+        if k:
+            monitor.reset()  # the same walk again, from a monitor without history
+        last = k == repeat - 1
+        times, first_k, verdicts = _time_walk(
+            monitor, inputs, warmup, min(peers, cycles) if last else 0, comparison if last else None, progress, pace, spin
+        )
+        if k == 0:
+            first = first_k  # a new monitor's (a reset one keeps its warm caches)
+        pass_medians.append(float(np.median(times["total"])))
+        for stage, ms in times.items():
+            stages.setdefault(stage, []).extend(ms)
     total = np.asarray(stages.pop("total"))
 
     # 2. the person's distances; 3. tightness and misses on the last person cycle (before
@@ -273,12 +300,19 @@ def run_bench(
             "pace_hz": pace,
             "pace_wait": None if pace is None else ("spin" if spin else "sleep"),
             "seed": seed,
+            "repeat": int(repeat),
             "targets": f"one person walking at {WALK_SPEED} m/s toward the robot and back",
             "robot": "6-axis arm in motion",
             "sensor_effects": "default (noise, dropouts, out of range, flying pixels)",
             "empty_cell_sensor_effects": "all (default and uint16 millimetres)",
         },
-        "cycle_ms": {"median": float(np.median(total)), "p99": float(np.percentile(total, 99)), "max": float(total.max())},
+        "cycle_ms": {
+            "median": float(np.median(total)),
+            "p99": float(np.percentile(total, 99)),
+            "max": float(total.max()),
+            "pass_medians": pass_medians,
+        },
+        "machine": {"cpu": _cpu_model(), "logical_cpus": os.cpu_count()},
         "first_cycles_ms": first,
         "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
         "stages_cycles": {s: len(v) for s, v in stages.items()},
@@ -287,6 +321,18 @@ def run_bench(
         "empty_cell": empty,
         "peers": None if comparison is None else comparison.result(),
     }
+
+
+def _cpu_model() -> str:
+    """The CPU's model name (``/proc/cpuinfo`` on Linux), else :func:`platform.processor`."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def _bench_cell(cell_path: Path | None, cameras: int | None, resolution: tuple[int, int] | None) -> tuple[Path, Any]:
@@ -530,6 +576,8 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError(f"--peers must be >= 0 cycles, got {args.peers}")
     if args.pace is not None and not (math.isfinite(args.pace) and 0.0 < args.pace <= MAX_PACE):
         raise PolyhullError(f"--pace must be a rate in (0, {MAX_PACE:g}] Hz, got {args.pace}")
+    if not 1 <= args.repeat <= MAX_REPEAT:
+        raise PolyhullError(f"--repeat must be in 1..{MAX_REPEAT}, got {args.repeat}")
     if args.spin and args.pace is None:
         raise PolyhullError("--spin waits for --pace's ticks: give --pace HZ too")
     return None if args.resolution is None else parse_resolution(args.resolution)
@@ -552,22 +600,27 @@ def _run(args: argparse.Namespace) -> int:
         result = run_bench(
             args.cell, args.cycles, args.warmup, args.empty_cycles, args.tightness_samples,
             args.cameras, resolution, args.seed, progress=True, peers=args.peers, peers_options=peers_options,
-            pace=args.pace, spin=args.spin,
+            pace=args.pace, spin=args.spin, repeat=args.repeat,
         )
     if args.json:
         print(json.dumps(_finite(result), indent=2))
         return 0
     w, c = result["workload"], result["cycle_ms"]
     paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz ({w['pace_wait']})"
+    passes = "" if w["repeat"] == 1 else f", {w['repeat']} passes pooled"
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
-          f"{w['cycles']} cycles after {w['warmup']} warm-up, {paced}")
+          f"{w['cycles']} cycles after {w['warmup']} warm-up, {paced}{passes}")
+    m = result["machine"]
+    print(f"machine: {m['cpu']}, {m['logical_cpus']} logical CPUs")
     print(f"{'stage':<16}{'median [ms]':>12}")
     for stage, ms in result["stages_ms_median"].items():
-        ran = result["stages_cycles"][stage]
-        note = "" if ran == w["cycles"] else f"   (ran in {ran} of {w['cycles']} cycles)"
+        ran, timed = result["stages_cycles"][stage], w["cycles"] * w["repeat"]
+        note = "" if ran == timed else f"   (ran in {ran} of {timed} cycles)"
         print(f"{stage:<16}{ms:12.1f}{note}")
     print(f"{'cycle median':<16}{c['median']:12.1f}")
     print(f"{'cycle p99':<16}{c['p99']:12.1f}")
+    if w["repeat"] > 1:
+        print("each pass's median: " + ", ".join(f"{ms:.1f}" for ms in c["pass_medians"]) + " ms")
     print("a new monitor's first cycles: " + ", ".join(f"{ms:.1f}" for ms in result["first_cycles_ms"]) + " ms")
     p = result["person"]
     g = p["true_minus_reported_m"]
