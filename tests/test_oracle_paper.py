@@ -33,7 +33,7 @@ from hypothesis import strategies as st
 from polyhull.distance import points_in_hexahedra
 from polyhull.monitor import Monitor
 from polyhull.oracles import in_solids
-from polyhull.person import make_person, sample_points_inside
+from polyhull.person import PersonTrack, make_person, sample_points_inside
 from polyhull.simulator import SensorEffects, Simulator
 
 # a few derandomized examples each (CI); HYPOTHESIS_PROFILE=explore draws fresh ones
@@ -260,3 +260,31 @@ def test_people_whose_limbs_the_robot_hides_stay_in_r3(paper: tuple[Monitor, Sim
         if v.faults:  # a contact stops the robot whatever the region
             break
         _assert_body_in_r3(monitor, frames, v, person, seed + c, c)
+
+
+def test_a_person_the_robot_hides_to_the_hips_keeps_their_feet(paper: tuple[Monitor, Simulator]) -> None:
+    """Found by ``tests/search_walks.py`` (seed 7010, its walk's cycle 11): a person lunging
+    at the robot's base and reaching over it, whom the base and the arm hide from every
+    camera from the floor to 1.1 m. Their forward foot lies in the floor's sheet outside M,
+    0.33 m from the base's axis; the body seen stands on M, but the legs' rule looked only
+    under pieces starting below 1 m, so the sheet rule took the foot (1 of 2,000 body
+    points) until every kept piece of a component touching M stood on the hidden legs."""
+    monitor, sim = paper
+    track = PersonTrack(
+        start=(1.322072171860302, 1.9326324148411007), end=(4.26757443812544, 3.4520814217912212),
+        speed=1.6601999899111575, end_pose="reaching",
+    )
+    q = np.array([-0.9433804497218096, -0.6510879265777954, 0.0026904190541092166, 2.9509456836846195, 0.6595817543514608, 0.39054145883085])
+    person = track.mesh(1.1)
+    frames = sim.render(q, targets=[person], seed=701011, stamp=1.1, effects=SensorEffects(flying_pixels=False))
+    monitor.reset()
+    v = monitor.step(frames, q, stamp=1.1)
+    assert not v.faults, v.faults  # no contact: the region is what keeps the foot
+    _assert_no_misses(monitor, frames, v, person, 7010, 0)
+    body = sample_points_inside(person, 2000, seed=1)
+    foot = body[(body[:, 2] < 0.1) & (np.hypot(body[:, 0] - 3.0, body[:, 1] - 3.0) < 0.4)]
+    assert len(foot) > 10  # the forward foot, beside the base
+    cell = monitor.cell
+    in_r3 = manifold_contains(monitor.static.region, foot) | points_in_hexahedra(foot, v._geometry.kept)  # type: ignore[union-attr]
+    ok = in_r3 | in_robot_occlusion(monitor, foot) | in_solids(cell, foot) | ~exactly_possibly_occupied(monitor, frames, foot)
+    assert ok.all(), f"{(~ok).sum()} of {len(foot)} points of the foot outside R3: {foot[~ok][:5]}"

@@ -703,9 +703,6 @@ def _removed(
     return tuple(removed)
 
 
-LEG_TOP = 1.0
-"""[m] The kept pieces lower than this (their bottom) may stand on legs the robot hides."""
-
 LEG_HEIGHTS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
 """[m] Heights above the floor at which the columns under those pieces are tested for M:
 a hidden leg crosses the top of the floor's sheet (0.24 m at most in the paper cell) in M."""
@@ -717,10 +714,10 @@ detection capability) holds one of its points (a disc of diameter sqrt(2) x 5 cm
 
 def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicContext) -> ArrayF64:
     """(L, 8, 3) boxes standing for the legs the robot may hide: under the kept pieces
-    ``touching`` (N,) M (of components that touch it; bounds ``lo``, ``hi`` (N, 3)) lower
-    than ``LEG_TOP``, every column of a ``LEG_GRID`` grid over their footprints that holds
-    a point of M at a height of ``LEG_HEIGHTS`` (``ctx.m_columns``), from the floor up to
-    the highest of them (through the top of the floor's sheet, however thick it is there).
+    ``touching`` (N,) M (of components that touch it; bounds ``lo``, ``hi`` (N, 3)),
+    however high they start, every column of a ``LEG_GRID`` grid over their footprints that
+    holds a point of M at a height of ``LEG_HEIGHTS`` (``ctx.m_columns``), from the floor up
+    to the highest of them (through the top of the floor's sheet, however thick it is there).
 
     A person whose legs the robot hides from every camera stands on M (the rules keep
     them: :func:`judge_dynamic`), but nothing of them crosses the floor's sheet where the
@@ -730,15 +727,17 @@ def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicCo
     margin, :func:`sheets_under` with ``horizontal``) holds the feet. M holds the padded
     robot too: a leg may stand in its padding, and under an arm swept that low beside a
     person the sheet then reaches the arm (a contact). Away from the robot M has no point
-    so low, and nothing is added."""
-    sel = touching & (lo[:, 2] < LEG_TOP)
-    if ctx.m_columns is None or not sel.any():
+    so low, and nothing is added. The body seen may start high: a person lunging at the
+    robot's base and reaching over it, whom the base and the arm hide from the floor to
+    1.1 m (a search of random walks found one whose forward foot, 0.33 m from the base's
+    axis, went with the sheet rule while only pieces starting below 1 m were looked under)."""
+    if ctx.m_columns is None or not touching.any():
         return np.zeros((0, 8, 3))
     zlo = np.asarray(ctx.zone.min, dtype=np.float64)
     zhi = np.asarray(ctx.zone.max, dtype=np.float64)
     g = LEG_GRID
-    a = np.floor((np.clip(lo[sel, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
-    b = np.ceil((np.clip(hi[sel, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
+    a = np.floor((np.clip(lo[touching, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
+    b = np.ceil((np.clip(hi[touching, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
     base = a.min(axis=0)
     a, b = a - base, b - base
     shape = b.max(axis=0) + 1
