@@ -25,8 +25,8 @@ from .typed import ArrayF64
 
 __all__ = ["PersonPose", "make_person", "sample_points_inside", "PersonTrack"]
 
-PersonPose = Literal["standing", "walking", "reaching"]
-_POSES: tuple[str, ...] = ("standing", "walking", "reaching")
+PersonPose = Literal["standing", "walking", "reaching", "crouching"]
+_POSES: tuple[str, ...] = ("standing", "walking", "reaching", "crouching")
 
 # Segments per full circle of spheres; 16 keeps a person at a few thousand triangles.
 _SEGMENTS = 16
@@ -131,8 +131,11 @@ def make_person(
     Args:
         height: Stature [m] (top of the head above the floor when standing).
         pose: ``"standing"`` (arms hanging), ``"walking"`` (legs and arms swung by
-            ``phase``) or ``"reaching"`` (both arms forward and slightly down, as over a
-            table, hands about 0.6 m in front of the chest).
+            ``phase``), ``"reaching"`` (both arms forward and slightly down, as over a
+            table, hands about 0.6 m in front of the chest) or ``"crouching"`` (a deep
+            squat, as to pick something up from the floor: thighs about level, the trunk
+            leaning forward, the hands low in front of the knees; about 0.64 of the height
+            tall).
         position: Floor position (x, y) of the point midway between the feet [m], world.
         yaw: Heading about world z [rad]; 0 faces world +x.
         phase: Gait phase [rad] of the walking pose; one gait cycle (two steps) is 2 pi.
@@ -153,7 +156,7 @@ def make_person(
             raise GeometryError(f"person {name} must be finite, got {value!r}")
 
     arms, legs = _pose_angles(pose, phase)
-    body = _body(height, arms, legs)
+    body = _body(height, arms, legs, lean=_CROUCH_LEAN if pose == "crouching" else 0.0)
     # Feet on the floor: shift so that the lowest point sits at z = 0.
     lowest_z = float(body.bounding_box()[2])
     body = body.translate((0.0, 0.0, -lowest_z))
@@ -183,6 +186,12 @@ def _pose_angles(pose: str, phase: float) -> tuple[tuple[_Limb, _Limb], tuple[_L
         arm = _Limb(swing=np.radians(68.0), bend=np.radians(12.0), abduction=0.05)
         leg = _Limb(swing=0.0, bend=0.0, abduction=0.02)
         return (arm, arm), (leg, leg)
+    if pose == "crouching":
+        # thighs swung about level (knees a little apart), shanks folded back under them;
+        # the arms hang forward from the leaning trunk, past the knees
+        arm = _Limb(swing=np.radians(25.0), bend=np.radians(15.0), abduction=0.12)
+        leg = _Limb(swing=np.radians(92.0), bend=np.radians(128.0), abduction=0.18)
+        return (arm, arm), (leg, leg)
     # Walking: sinusoidal hip swing of +-25 deg, knee flexion peaking at 55 deg in swing,
     # arms swinging opposite to the legs by +-20 deg with slightly bent elbows.
     legs = []
@@ -197,10 +206,15 @@ def _pose_angles(pose: str, phase: float) -> tuple[tuple[_Limb, _Limb], tuple[_L
     return (arms[0], arms[1]), (legs[0], legs[1])
 
 
+_CROUCH_LEAN = np.radians(35.0)
+"""The trunk's forward lean of the crouching pose [rad]."""
+
+
 def _body(
-    height: float, arms: tuple[_Limb, _Limb], legs: tuple[_Limb, _Limb]
+    height: float, arms: tuple[_Limb, _Limb], legs: tuple[_Limb, _Limb], lean: float = 0.0
 ) -> m3.Manifold:
-    """The posed body in the body frame before the floor shift (manifold)."""
+    """The posed body in the body frame before the floor shift (manifold); ``lean`` [rad]
+    tilts the trunk, head and arms forward about the hip joints' axis."""
     h = height
     p = _P
     parts: list[m3.Manifold] = []
@@ -243,6 +257,15 @@ def _body(
         parts.append(_capsule(b, c, p.forearm_radius * h))
         direction = (c - b) / np.linalg.norm(c - b)
         parts.append(_capsule(c, c + direction * p.hand * h, p.hand_radius * h))
+    if lean:
+        # the upper body about the hip axis: +lean brings the head forward (+x)
+        pivot = np.array([0.0, 0.0, p.hip_z * h])
+        c, s = np.cos(lean), np.sin(lean)
+        R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])  # (0, 0, 1) -> (s, 0, c)
+        T = np.eye(4)[:3]
+        T[:, :3] = R
+        T[:, 3] = pivot - R @ pivot
+        parts = [m3.Manifold.batch_boolean(parts, m3.OpType.Add).transform(T)]
     # Legs: thigh, shank, foot.
     for side, limb in zip((1.0, -1.0), legs, strict=True):
         root = np.array([0.0, side * p.hip_y * h, p.hip_z * h])

@@ -4,6 +4,9 @@
 Each walk (one seed): a person walks a random track across the floor at 0.8 to 1.8 m/s and
 then stands or reaches, while the robot moves between two random joint positions; 12 cycles
 of 0.1 s with every sensor effect on (without flying pixels in about a third of the walks).
+Most such tracks are longer than the 1.2 s walked; with ``--arrive`` the person walks
+towards the robot's base from 0.2 to 0.8 m away and stops 0.6 to 1.6 m from it, within the
+first second, then stands, reaches or crouches there for the rest of the walk.
 Every cycle that does not stop for a contact is checked by the same oracles as the tests:
 
 - 6,000 points (half in the zone, half around the person): each that the SPEC's exact
@@ -16,6 +19,7 @@ Every cycle that does not stop for a contact is checked by the same oracles as t
 
     python tests/search_walks.py --seeds 3000 --walks 60
     python tests/search_walks.py --cell fixtures/cells/color8_cell.toml --walks 20
+    python tests/search_walks.py --arrive --seeds 10000 --walks 30
 
 prints one line per finding and a summary; exits 1 on a miss or a lost body point. About
 20 s a walk on a 2-core machine.
@@ -51,37 +55,52 @@ CYCLES = 12
 DT = 0.1  # [s]
 
 
-def walk(monitor: Monitor, rng: np.random.Generator) -> tuple[PersonTrack, np.ndarray, np.ndarray, SensorEffects]:
+def walk(
+    monitor: Monitor, rng: np.random.Generator, arrive: bool = False
+) -> tuple[PersonTrack, np.ndarray, np.ndarray, SensorEffects]:
     """A walk drawn from ``rng``: the person's track, the robot's two joint positions, the
-    sensor effects."""
+    sensor effects (``arrive``: a short track that ends near the robot, see above)."""
     cell, robot = monitor.cell, monitor.robot
     assert robot is not None
 
     lo, hi = np.asarray(cell.zone.min)[:2] + 0.3, np.asarray(cell.zone.max)[:2] - 0.3
     base = np.asarray(cell.robot.base)[:2] if cell.robot is not None else 0.5 * (lo + hi)
 
+    def free_spot(x: float, y: float) -> bool:  # on the floor, off the obstacles and the robot's base
+        inside = bool(np.all((lo <= (x, y)) & ((x, y) <= hi)))
+        return inside and np.hypot(x - base[0], y - base[1]) > 0.6 and not in_solids(cell, np.array([[x, y, 0.3], [x, y, 1.0]])).any()
+
     def spot() -> tuple[float, float]:
-        while True:  # on the floor, off the obstacles and the robot's base
+        while True:
             x, y = rng.uniform(lo, hi)
-            if np.hypot(x - base[0], y - base[1]) > 0.6 and not in_solids(cell, np.array([[x, y, 0.3], [x, y, 1.0]])).any():
+            if free_spot(x, y):
                 return float(x), float(y)
 
-    start, end = spot(), spot()
-    track = PersonTrack(
-        start=start, end=end, speed=float(rng.uniform(0.8, 1.8)), t0=0.0, end_pose=str(rng.choice(["standing", "reaching"]))  # type: ignore[arg-type]
-    )
+    def arrival() -> tuple[tuple[float, float], tuple[float, float]]:
+        while True:  # the end 0.6 to 1.6 m from the base, the start farther out, facing it
+            a, r, back = rng.uniform(-np.pi, np.pi), rng.uniform(0.6, 1.6), rng.uniform(0.2, 0.8)
+            turn = a + rng.uniform(-0.5, 0.5)
+            end = base + r * np.array([np.cos(a), np.sin(a)])
+            start = end + back * np.array([np.cos(turn), np.sin(turn)])
+            if free_spot(*end) and free_spot(*start):
+                return (float(start[0]), float(start[1])), (float(end[0]), float(end[1]))
+
+    start, end = arrival() if arrive else (spot(), spot())
+    speed = float(rng.uniform(0.8, 1.8))
+    pose = str(rng.choice(["standing", "reaching", "crouching"] if arrive else ["standing", "reaching"]))
+    track = PersonTrack(start=start, end=end, speed=speed, t0=0.0, end_pose=pose)  # type: ignore[arg-type]
     q0 = robot.lower + rng.uniform(0.2, 0.8, 6) * (robot.upper - robot.lower)
     q1 = robot.lower + rng.uniform(0.2, 0.8, 6) * (robot.upper - robot.lower)
     effects = SensorEffects() if rng.random() < 0.7 else SensorEffects(flying_pixels=False)
     return track, q0, q1, effects
 
 
-def check_walk(monitor: Monitor, sim: Simulator, seed: int) -> list[dict[str, object]]:
+def check_walk(monitor: Monitor, sim: Simulator, seed: int, arrive: bool = False) -> list[dict[str, object]]:
     """Run one walk; a finding (dict) per cycle with a contact, an excused point, a miss or
     a lost body point."""
     cell = monitor.cell
     rng = np.random.default_rng(seed)  # the walk, then the cycles' points
-    track, q0, q1, effects = walk(monitor, rng)
+    track, q0, q1, effects = walk(monitor, rng, arrive)
     findings: list[dict[str, object]] = []
     monitor.reset()
     for c in range(CYCLES):
@@ -113,13 +132,17 @@ def main() -> int:
     parser.add_argument("--cell", type=Path, default=None, help="cell file (default: the embedded paper cell)")
     parser.add_argument("--seeds", type=int, default=3000, help="first walk's seed (default 3000)")
     parser.add_argument("--walks", type=int, default=10, help="walks, seeds in a row (default 10)")
+    parser.add_argument(
+        "--arrive", action="store_true",
+        help="short walks towards the robot that end 0.6 to 1.6 m from its base, standing, reaching or crouching",
+    )
     args = parser.parse_args()
     cell = load_cell(args.cell or default_cell_path())
     sim = Simulator(cell)
     monitor = Monitor(cell, references=sim.reference())
     cycles = stops = excused = misses = lost = 0
     for seed in tqdm(range(args.seeds, args.seeds + args.walks), desc="walks", unit="walk"):
-        findings = check_walk(monitor, sim, seed)
+        findings = check_walk(monitor, sim, seed, args.arrive)
         cycles += CYCLES
         for f in findings:
             if "stop" in f:

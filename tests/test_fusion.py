@@ -89,7 +89,7 @@ def test_k2_hull_contains_k1_hull_and_lies_in_zone(
 
 # -- the point oracle for C on simulated scenes -------------------------------------------
 
-_POSES = st.sampled_from(["standing", "walking", "reaching"])
+_POSES = st.sampled_from(["standing", "walking", "reaching", "crouching"])
 
 
 @settings(

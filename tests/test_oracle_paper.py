@@ -27,7 +27,7 @@ from conftest import (
     outside_r2,
     zone_and_person_points,
 )
-from hypothesis import HealthCheck, Phase, assume, given, settings
+from hypothesis import HealthCheck, Phase, assume, example, given, settings
 from hypothesis import strategies as st
 
 from polyhull.distance import points_in_hexahedra
@@ -50,7 +50,7 @@ SEARCH = settings(
     x=st.floats(0.4, 5.6),
     y=st.floats(0.4, 5.6),
     yaw=st.floats(-np.pi, np.pi),
-    pose=st.sampled_from(["standing", "walking", "reaching"]),
+    pose=st.sampled_from(["standing", "walking", "reaching", "crouching"]),
     q01=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
     effects=st.sampled_from(["none", "all", "no flying pixels"]),
     seed=st.integers(0, 10_000),
@@ -98,7 +98,7 @@ def _beside(bounds: np.ndarray, side: int, along: float, gap: float) -> tuple[fl
     gap=st.floats(0.12, 0.45),
     height=st.floats(1.5, 1.95),
     yaw=st.floats(-np.pi, np.pi),
-    pose=st.sampled_from(["standing", "walking", "reaching"]),
+    pose=st.sampled_from(["standing", "walking", "reaching", "crouching"]),
     second=st.booleans(),
     q01=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
     effects=st.sampled_from(["none", "all", "no flying pixels"]),
@@ -109,7 +109,7 @@ def test_people_beside_an_obstacle_stay_in_r3(
     obstacle: int, side: int, along: float, gap: float, height: float, yaw: float, pose: str,
     second: bool, q01: list[float], effects: str, seed: int,
 ) -> None:
-    """People standing, walking or reaching beside a table's or the rack's side (where the
+    """People standing, walking, reaching or crouching beside a table's or the rack's side (where the
     noise sheets are up to 0.4 m deep), a second one anywhere: every body point in R3 or
     excused. A search of this kind found a person with their back to the rack lost, and a
     toe in the rack's corner by the wall (``test_person_at_table``)."""
@@ -164,13 +164,17 @@ def _assert_body_in_r3(monitor: Monitor, frames: object, v: object, person: obje
 
 
 @SEARCH
+@example(  # crouching 0.7 m from the base, in its floor sheet, while the arm moves
+    r0=0.7, bearing=0.5, heading=0.0, step=0.05, height=1.75, pose="crouching", q01=[0.5] * 6, dq=[0.03] * 6,
+    effects="all", seed=11,
+)
 @given(
     r0=st.floats(0.6, 1.5),
     bearing=st.floats(-np.pi, np.pi),
     heading=st.floats(-1.2, 1.2),
     step=st.floats(0.05, 0.15),
     height=st.floats(1.5, 1.95),
-    pose=st.sampled_from(["standing", "walking", "reaching"]),
+    pose=st.sampled_from(["standing", "walking", "reaching", "crouching"]),
     q01=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
     dq=st.lists(st.floats(-0.08, 0.08), min_size=6, max_size=6),
     effects=st.sampled_from(["none", "all", "no flying pixels"]),

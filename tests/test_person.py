@@ -12,7 +12,7 @@ from polyhull.errors import GeometryError
 from polyhull.person import PersonTrack, make_person, sample_points_inside
 
 
-@pytest.mark.parametrize("pose", ["standing", "walking", "reaching"])
+@pytest.mark.parametrize("pose", ["standing", "walking", "reaching", "crouching"])
 def test_person_is_one_watertight_body(pose):
     mesh = make_person(1.75, pose, phase=0.7)
     assert mesh.is_watertight
@@ -75,13 +75,33 @@ def test_pose_placement_and_yaw():
     height=st.floats(1.4, 2.1),
     phase=st.floats(0.0, 2 * np.pi),
     yaw=st.floats(-np.pi, np.pi),
-    pose=st.sampled_from(["standing", "walking", "reaching"]),
+    pose=st.sampled_from(["standing", "walking", "reaching", "crouching"]),
 )
 def test_person_is_watertight_for_any_parameters(height, phase, yaw, pose):
     mesh = make_person(height, pose, position=(0.5, 0.5), yaw=yaw, phase=phase)
     assert mesh.is_watertight
     assert mesh.bounds[0, 2] == pytest.approx(0.0, abs=1e-9)
     assert np.isfinite(mesh.vertices).all()
+
+
+def test_crouching_is_a_low_squat_leaning_forward():
+    height = 1.75
+    mesh = make_person(height, "crouching", floor_z=0.1)
+    standing = make_person(height, "standing", floor_z=0.1)
+    lo, hi = mesh.bounds
+    assert lo[2] == pytest.approx(0.1, abs=1e-9)  # feet on the floor
+    # about 0.65 of the height tall (a deep squat)
+    assert 0.55 * height < hi[2] - 0.1 < 0.75 * height
+    # the same body: the volume within a few per cent of the standing one's
+    assert mesh.volume == pytest.approx(standing.volume, rel=0.05)
+    v = mesh.vertices
+    # the knees in front (+x), the head forward of the feet's midpoint by the trunk's lean
+    assert v[:, 0].max() > 0.35
+    head = v[v[:, 2] > hi[2] - 0.1]
+    assert head[:, 0].mean() > 0.15
+    # low body parts near the floor: the seat within 0.5 m of it, behind the knees
+    seat = v[(v[:, 0] < 0.0) & (np.abs(v[:, 1]) < 0.1)]
+    assert seat[:, 2].min() - 0.1 < 0.5
 
 
 def test_invalid_parameters_are_rejected():

@@ -27,12 +27,12 @@ if TYPE_CHECKING:
 
 __all__ = ["register", "TargetSpec", "parse_target", "parse_q"]
 
-_POSES = ("standing", "walking", "reaching")
+_POSES = ("standing", "walking", "reaching", "crouching")
 
 _TARGET_HELP = (
     "a target to place in the cell, repeatable: MESH[@x,y[,z[,yaw]]]. MESH is a mesh file "
     "(anything trimesh reads) or the built-in person: person[:POSE[:HEIGHT[:PHASE]]] with "
-    "POSE standing, walking or reaching, HEIGHT in m (default 1.75) and the gait PHASE in "
+    "POSE standing, walking, reaching or crouching, HEIGHT in m (default 1.75) and the gait PHASE in "
     "rad. x, y, z [m] and yaw [rad, about +z] place it in the world; a mesh keeps its own "
     "frame (default 0,0,0,0); a person stands on the floor (z defaults to the floor "
     "height, x, y to the middle of the zone) facing +x at yaw 0."
