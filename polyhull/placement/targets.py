@@ -32,7 +32,7 @@ class PersonPlacement:
     """Where and how a sampled person stands.
 
     Attributes:
-        pose: ``"standing"``, ``"walking"`` or ``"reaching"``.
+        pose: a :data:`polyhull.person.PersonPose` (``"standing"``, ``"walking"``, ``"reaching"`` or ``"crouching"``).
         position: Floor position (x, y) [m], world frame.
         yaw: Heading about world z [rad]; 0 faces world +x.
         height: Stature [m].
