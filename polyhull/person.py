@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, get_args
 
 import manifold3d as m3
 import numpy as np
@@ -23,10 +23,11 @@ import trimesh
 from .errors import GeometryError
 from .typed import ArrayF64
 
-__all__ = ["PersonPose", "make_person", "sample_points_inside", "PersonTrack"]
+__all__ = ["POSES", "PersonPose", "make_person", "sample_points_inside", "PersonTrack"]
 
 PersonPose = Literal["standing", "walking", "reaching", "crouching"]
-_POSES: tuple[str, ...] = ("standing", "walking", "reaching", "crouching")
+POSES: tuple[str, ...] = get_args(PersonPose)
+"""The poses :func:`make_person` builds."""
 
 # Segments per full circle of spheres; 16 keeps a person at a few thousand triangles.
 _SEGMENTS = 16
@@ -146,8 +147,8 @@ def make_person(
     """
     if not (np.isfinite(height) and 0.5 <= height <= 2.5):
         raise GeometryError(f"person height must be in [0.5, 2.5] m, got {height!r}")
-    if pose not in _POSES:
-        raise GeometryError(f"person pose must be one of {list(_POSES)}, got {pose!r}")
+    if pose not in POSES:
+        raise GeometryError(f"person pose must be one of {list(POSES)}, got {pose!r}")
     xy = np.asarray(position, dtype=np.float64)
     if xy.shape != (2,) or not np.all(np.isfinite(xy)):
         raise GeometryError(f"person position must be 2 finite numbers (x, y) [m], got {position!r}")

@@ -27,8 +27,6 @@ if TYPE_CHECKING:
 
 __all__ = ["register", "TargetSpec", "parse_target", "parse_q"]
 
-_POSES = ("standing", "walking", "reaching", "crouching")
-
 _TARGET_HELP = (
     "a target to place in the cell, repeatable: MESH[@x,y[,z[,yaw]]]. MESH is a mesh file "
     "(anything trimesh reads) or the built-in person: person[:POSE[:HEIGHT[:PHASE]]] with "
@@ -115,8 +113,10 @@ def parse_target(text: str) -> TargetSpec:
         if len(fields) > 4:
             raise PolyhullError(f"{what}: person takes at most person:POSE:HEIGHT:PHASE")
         pose = fields[1] if len(fields) > 1 and fields[1] else "standing"
-        if pose not in _POSES:
-            raise PolyhullError(f"{what}: person pose must be one of {list(_POSES)}, got {pose!r}")
+        from ..person import POSES
+
+        if pose not in POSES:
+            raise PolyhullError(f"{what}: person pose must be one of {list(POSES)}, got {pose!r}")
         height = _numbers(fields[2], f"{what} height")[0] if len(fields) > 2 and fields[2] else 1.75
         phase = _numbers(fields[3], f"{what} phase")[0] if len(fields) > 3 and fields[3] else 0.0
         return TargetSpec("person", pose, height, phase, xy, z, yaw)
