@@ -6,7 +6,10 @@ then stands or reaches, while the robot moves between two random joint positions
 of 0.1 s with every sensor effect on (without flying pixels in about a third of the walks).
 Most such tracks are longer than the 1.2 s walked; with ``--arrive`` the person walks
 towards the robot's base from 0.2 to 0.8 m away and stops 0.6 to 1.6 m from it, within the
-first second, then stands, reaches or crouches there for the rest of the walk.
+first second, then stands, reaches or crouches there for the rest of the walk. With
+``--people 2`` a second person (1.5 to 1.95 m tall) walks a track of the same kind, never
+within 0.7 m of the first (drawn after everything else, so a seed's first person, robot
+motion and sensor effects are those of the one-person walk).
 Every cycle that does not stop for a contact is checked by the same oracles as the tests:
 
 - 6,000 points (half in the zone, half around the person): each that the SPEC's exact
@@ -20,6 +23,7 @@ Every cycle that does not stop for a contact is checked by the same oracles as t
     python tests/search_walks.py --seeds 3000 --walks 60
     python tests/search_walks.py --cell fixtures/cells/color8_cell.toml --walks 20
     python tests/search_walks.py --arrive --seeds 10000 --walks 30
+    python tests/search_walks.py --arrive --people 2 --seeds 13000 --walks 20
 
 prints one line per finding and a summary; exits 1 on a miss or a lost body point. About
 20 s a walk on a 2-core machine.
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -95,26 +100,47 @@ def walk(
     return track, q0, q1, effects
 
 
-def check_walk(monitor: Monitor, sim: Simulator, seed: int, arrive: bool = False) -> list[dict[str, object]]:
+SEPARATION = 0.7
+"""[m] Least distance between two people's floor positions over a walk (their bodies,
+reaching included, do not overlap)."""
+
+
+def second_walker(monitor: Monitor, rng: np.random.Generator, first: PersonTrack, arrive: bool) -> PersonTrack:
+    """A second person's track of the same kind as ``first``'s (:func:`walk`), never within
+    ``SEPARATION`` of it over the walk, with a stature drawn from 1.5 to 1.95 m."""
+    times = np.arange(0.0, CYCLES * DT + 1e-9, 0.05)
+    while True:
+        track, _, _, _ = walk(monitor, rng, arrive)
+        gaps = [np.linalg.norm(track.position(t)[:2] - first.position(t)[:2]) for t in times]
+        if min(gaps) >= SEPARATION:
+            height = float(rng.uniform(1.5, 1.95))
+            return replace(track, height=height)
+
+
+def check_walk(
+    monitor: Monitor, sim: Simulator, seed: int, arrive: bool = False, people: int = 1
+) -> list[dict[str, object]]:
     """Run one walk; a finding (dict) per cycle with a contact, an excused point, a miss or
     a lost body point."""
     cell = monitor.cell
     rng = np.random.default_rng(seed)  # the walk, then the cycles' points
     track, q0, q1, effects = walk(monitor, rng, arrive)
+    tracks = [track] + [second_walker(monitor, rng, track, arrive) for _ in range(people - 1)]
     findings: list[dict[str, object]] = []
     monitor.reset()
     for c in range(CYCLES):
         t = DT * c
         q = q0 + (q1 - q0) * min(1.0, t / 1.5)
-        person = track.mesh(t)
-        frames = sim.render(q, targets=[person], seed=seed * 100 + c, stamp=t, effects=effects)
+        persons = [tr.mesh(t) for tr in tracks]
+        frames = sim.render(q, targets=persons, seed=seed * 100 + c, stamp=t, effects=effects)
         v = monitor.step(frames, q, stamp=t)
         if v.faults:
             findings.append({"seed": seed, "cycle": c, "stop": list(v.faults)})
             continue
-        _, out = outside_r2(monitor, frames, v, zone_and_person_points(cell, person, rng))
+        points = np.concatenate([zone_and_person_points(cell, p, rng, n=3000 // people) for p in persons])
+        _, out = outside_r2(monitor, frames, v, points)
         declared = in_declared_occlusion(monitor, frames, out)
-        body = sample_points_inside(person, 300, seed=seed + c)
+        body = np.concatenate([sample_points_inside(p, 300, seed=seed + c + 7919 * i) for i, p in enumerate(persons)])
         body = body[cell.zone.contains(body)]
         in_r3 = manifold_contains(monitor.static.region, body) | points_in_hexahedra(body, v._geometry.kept)  # type: ignore[union-attr]
         ok = in_r3 | in_robot_occlusion(monitor, body) | in_solids(cell, body)
@@ -136,13 +162,14 @@ def main() -> int:
         "--arrive", action="store_true",
         help="short walks towards the robot that end 0.6 to 1.6 m from its base, standing, reaching or crouching",
     )
+    parser.add_argument("--people", type=int, choices=(1, 2), default=1, help="people walking at once (default 1)")
     args = parser.parse_args()
     cell = load_cell(args.cell or default_cell_path())
     sim = Simulator(cell)
     monitor = Monitor(cell, references=sim.reference())
     cycles = stops = excused = misses = lost = 0
     for seed in tqdm(range(args.seeds, args.seeds + args.walks), desc="walks", unit="walk"):
-        findings = check_walk(monitor, sim, seed, args.arrive)
+        findings = check_walk(monitor, sim, seed, args.arrive, args.people)
         cycles += CYCLES
         for f in findings:
             if "stop" in f:
