@@ -77,6 +77,12 @@ def test_bench_json_person_and_empty_cell(bench_json: dict) -> None:  # type: ig
     assert 0 <= person["exact_hull_cycles_static_nearer"] <= person["exact_hull_cycles"]
     assert -0.05 <= exact_gap["median"] <= exact_gap["max"] < 6.0
     assert math.isfinite(loss["median"]) and loss["max"] >= loss["median"]
+    # the cycles where the person's part of the exact hull, not the static region, is nearest
+    decides = person["person_decides"]
+    assert 0 <= decides["cycles"] <= person["exact_hull_cycles"] - person["exact_hull_cycles_static_nearer"]
+    if decides["cycles"]:
+        assert -0.05 <= decides["exact_hull_gap_m"]["median"] <= decides["exact_hull_gap_m"]["max"] < 6.0
+        assert decides["true_minus_reported_m"]["median"] <= decides["true_minus_reported_m"]["max"]
     empty = bench_json["empty_cell"]
     assert empty["cycles"] == 2
     # timed back to back: the warm-up cycle left out of the two

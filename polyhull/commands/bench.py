@@ -434,10 +434,12 @@ def _person_figures(
 
     robot, distance_model = monitor.robot, monitor._distance_model
     gaps, trues, above = [], [], 0
+    gap_of: list[float] = []  # per cycle (NaN where a distance is not finite)
     for (_, q, _, person), v in zip(inputs, verdicts, strict=True):
         true = distance_model.distance(robot.link_transforms(q), region=mesh_to_manifold(person, "person")).distance
-        if math.isfinite(true) and math.isfinite(v.min_distance):
-            gaps.append(true - v.min_distance)
+        gap_of.append(true - v.min_distance if math.isfinite(true) and math.isfinite(v.min_distance) else math.nan)
+        if math.isfinite(gap_of[-1]):
+            gaps.append(gap_of[-1])
         above += int(v.min_distance > true + 1e-6)
         trues.append(true)
 
@@ -445,8 +447,9 @@ def _person_figures(
     moving = set(distance_model.link_names)
     oracle = ExactHullGap(monitor, {n: m for n, m in robot.link_geometry().items() if n in moving}, seed=seed)
     exact_gaps, engine_losses, clipped, static_nearer = [], [], 0, 0
+    decides: list[tuple[float, float]] = []  # (engine gap, exact gap) where the person's part is nearer
     with _progress(len(inputs), "exact hull gap", progress) as bar:
-        for (frames, q, _, person), v, true in zip(inputs, verdicts, trues, strict=True):
+        for (frames, q, _, person), v, true, gap in zip(inputs, verdicts, trues, gap_of, strict=True):
             d, cut = oracle.measure(frames, sim.render_exact(q), robot.link_transforms(q), person)
             clipped += int(cut)
             # the static region (blind space, static shadows) is in every region from these
@@ -455,6 +458,8 @@ def _person_figures(
                 robot.link_transforms(q), static=monitor.static.bvh, static_contains=monitor._static_contains
             ).distance
             static_nearer += int(static < d)
+            if d <= static and math.isfinite(d) and math.isfinite(true) and math.isfinite(gap):
+                decides.append((gap, true - d))
             d = min(d, static)
             if math.isfinite(d) and math.isfinite(true):
                 exact_gaps.append(true - d)
@@ -470,6 +475,14 @@ def _person_figures(
         "exact_hull_cycles": len(exact_gaps),
         "exact_hull_cycles_clipped": clipped,
         "exact_hull_cycles_static_nearer": static_nearer,
+        # the cycles where the exact hull's part that holds the person is nearer than the
+        # static region: the person decides the distance any region from these cameras can
+        # report (elsewhere the blind space does, and every region's gap is at least its)
+        "person_decides": {
+            "cycles": len(decides),
+            "true_minus_reported_m": {k: v for k, v in _stats([a for a, _ in decides]).items() if k != "min"},
+            "exact_hull_gap_m": {k: v for k, v in _stats([b for _, b in decides]).items() if k != "min"},
+        },
         "exact_hull_grid_m": GAP_GRID,
         "exact_hull_seconds": time.perf_counter() - started,
         "distance_m": _stats([v.min_distance for v in verdicts]),
@@ -634,6 +647,10 @@ def _run(args: argparse.Namespace) -> int:
           f"the static region nearer in {p['exact_hull_cycles_static_nearer']} cycles)")
     print(f"engine against that exact hull: its distance - reported median {_fmt(e['median'])} m, "
           f"max {_fmt(e['max'])} m (what the engine loses to the exact hull)")
+    pd = p["person_decides"]
+    print(f"where the person decides (the exact hull's part that holds them nearer than the static region, "
+          f"{pd['cycles']} of {p['exact_hull_cycles']} cycles): true - reported median "
+          f"{_fmt(pd['true_minus_reported_m']['median'])} m, the exact hull's {_fmt(pd['exact_hull_gap_m']['median'])} m")
     if p["faults"]:
         print(f"  faults: {'; '.join(p['faults'])}")
     t = result["tightness"]
