@@ -1,6 +1,7 @@
 """Zero misses in the paper cell over random scenes: one person (pose, place, heading)
 anywhere on the floor, the robot at a random joint position, with or without sensor
-noise. Hypothesis, derandomized (see conftest); ``HYPOTHESIS_PROFILE=explore`` searches.
+noise; people beside obstacles, walking up to the robot, or hidden by another person
+beside it. Hypothesis, derandomized (see conftest); ``HYPOTHESIS_PROFILE=explore`` searches.
 
 Two oracles, both independent of the engine's geometry:
 
@@ -213,6 +214,58 @@ def test_people_walking_up_to_the_robot_stay_in_r3(
         if v.faults:  # a contact stops the robot whatever the region
             break
         _assert_body_in_r3(monitor, frames, v, person, seed + c, c)
+
+
+@SEARCH
+@given(
+    r0=st.floats(0.6, 1.3),
+    bearing=st.floats(-np.pi, np.pi),
+    camera=st.integers(0, 3),
+    gap=st.floats(0.6, 1.5),
+    side=st.floats(-0.25, 0.25),
+    heights=st.tuples(st.floats(1.5, 1.95), st.floats(1.5, 1.95)),
+    poses=st.tuples(
+        st.sampled_from(["standing", "reaching", "crouching"]), st.sampled_from(["standing", "walking", "reaching"])
+    ),
+    q01=st.lists(st.floats(0.0, 1.0), min_size=6, max_size=6),
+    effects=st.sampled_from(["none", "all"]),
+    seed=st.integers(0, 100_000),
+)
+def test_a_person_another_hides_beside_the_robot_stays_in_r3(
+    paper: tuple[Monitor, Simulator],
+    r0: float, bearing: float, camera: int, gap: float, side: float, heights: tuple[float, float],
+    poses: tuple[str, str], q01: list[float], effects: str, seed: int,
+) -> None:
+    """Two people: one 0.6 to 1.3 m from the robot's base, the other 0.6 to 1.5 m from them
+    towards one camera (off the line by up to 0.25 m), hiding them from it, while the robot
+    hides them from others. No miss around either, and both bodies in R3 (or excused)."""
+    monitor, sim = paper
+    cell, robot = monitor.cell, monitor.robot
+    assert robot is not None
+    bx, by = cell.robot.base[:2]  # type: ignore[union-attr]
+    a = np.array([bx + r0 * np.cos(bearing), by + r0 * np.sin(bearing)])
+    towards = cell.cameras[camera].center[:2] - a
+    towards /= np.linalg.norm(towards)
+    b = a + gap * towards + side * np.array([-towards[1], towards[0]])
+    lo, hi = np.asarray(cell.zone.min)[:2] + 0.3, np.asarray(cell.zone.max)[:2] - 0.3
+    assume(bool(np.all((lo <= b) & (b <= hi))) and np.hypot(b[0] - bx, b[1] - by) > 0.6)
+    assume(not in_solids(cell, np.array([[*b, 0.3], [*b, 1.0], [*a, 0.3], [*a, 1.0]])).any())
+    people = [
+        make_person(height=heights[0], pose=poses[0], position=tuple(a), yaw=bearing + np.pi),  # type: ignore[arg-type]
+        make_person(height=heights[1], pose=poses[1], position=tuple(b), yaw=float(np.arctan2(-towards[1], -towards[0]))),  # type: ignore[arg-type]
+    ]
+    q = robot.lower + np.asarray(q01) * (robot.upper - robot.lower)
+    chosen = {"none": SensorEffects.none(), "all": SensorEffects()}
+    frames = sim.render(q, targets=people, seed=seed, stamp=1.0, effects=chosen[effects])
+    monitor.reset()
+    v = monitor.step(frames, q, stamp=1.0)
+    assert not any("internal" in f for f in v.faults), v.faults
+    for j, person in enumerate(people):
+        _assert_no_misses(monitor, frames, v, person, seed + j, 0)
+    if v.faults:  # a contact stops the robot whatever the region
+        return
+    for j, person in enumerate(people):
+        _assert_body_in_r3(monitor, frames, v, person, seed + j, 0)
 
 
 def _search_walk(monitor: Monitor, seed: int) -> tuple[list[tuple[object, np.ndarray, float]], SensorEffects]:
