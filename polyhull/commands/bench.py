@@ -661,8 +661,8 @@ def _run(args: argparse.Namespace) -> int:
         print(f"R2 against the exact hull with the static band: {t['volume_engine_r2_m3']:.1f} vs "
               f"{t['volume_exact_banded_m3']:.1f} m^3 ({_fmt(t['excess_over_banded_percent'], '+.0f')} %)")
         print(f"misses: {t['misses']} (outside R2 and the padded robot's M), {t['misses_band']} in M only with the "
-              f"static band, {t['misses_flying']} only with a static edge's flying pixels, "
-              f"unexcused {t['misses_unexcused']}")
+              f"static band, {t['misses_flying']} only with a static edge's flying pixels; "
+              f"{t['misses_unexcused']} exact-hull points outside R2 in all, the others in M (the padding)")
     e = result["empty_cell"]
     if e is not None:
         c = e["cycle_ms"]
