@@ -433,15 +433,14 @@ def _person_figures(
     from ..cell import mesh_to_manifold
 
     robot, distance_model = monitor.robot, monitor._distance_model
-    gaps, trues, above = [], [], 0
+    trues, above = [], 0
     gap_of: list[float] = []  # per cycle (NaN where a distance is not finite)
     for (_, q, _, person), v in zip(inputs, verdicts, strict=True):
         true = distance_model.distance(robot.link_transforms(q), region=mesh_to_manifold(person, "person")).distance
         gap_of.append(true - v.min_distance if math.isfinite(true) and math.isfinite(v.min_distance) else math.nan)
-        if math.isfinite(gap_of[-1]):
-            gaps.append(gap_of[-1])
         above += int(v.min_distance > true + 1e-6)
         trues.append(true)
+    gaps = [g for g in gap_of if math.isfinite(g)]
 
     started = time.perf_counter()
     moving = set(distance_model.link_names)
