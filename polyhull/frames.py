@@ -98,7 +98,18 @@ def save_frames(path: str | Path, frames: Mapping[str, DepthFrame], q: ArrayF64,
 
 def open_npz(path: Path, error: type[Exception], what: str) -> np.lib.npyio.NpzFile:
     """``np.load`` of an .npz of named arrays (no pickles); any other content raises
-    ``error`` with one line naming the file and ``what`` it should be."""
+    ``error`` with one line naming the file and ``what`` it should be. The first bytes are
+    looked at before numpy opens the file: numpy takes anything else for a pickle, and its
+    message invites an unsafe load."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(6)
+    except OSError as exc:
+        raise error(f"{path}: not a readable .npz {what} ({exc.strerror or exc})") from None
+    if head.startswith(b"\x80"):  # pickle protocol 2 and later
+        raise error(f"{path}: not an .npz {what} (it holds pickled objects, which polyhull never loads)")
+    if not head.startswith((b"PK\x03\x04", b"PK\x05\x06", b"\x93NUMPY")):  # a zip (an empty one), an .npy
+        raise error(f"{path}: not an .npz {what} (not a zip archive of named arrays)")
     try:
         data = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:

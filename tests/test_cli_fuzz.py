@@ -9,6 +9,7 @@ before any monitor is built, so a cell edit that leaves a valid cell shows as th
 
 from __future__ import annotations
 
+import pickle
 import re
 from pathlib import Path
 
@@ -79,7 +80,24 @@ def test_random_bytes_as_a_frames_file(work: Path, capsys: pytest.CaptureFixture
     """Junk, and every truncation of a valid frames file (a zip's directory is at its end)."""
     frames = work / "junk_frames.npz"
     frames.write_bytes(data)
-    _one_line_error(capsys, _run(CELL, frames), str(frames))
+    err = _one_line_error(capsys, _run(CELL, frames), str(frames))
+    assert "allow_pickle" not in err  # numpy's advice to load the file unsafely
+
+
+@pytest.mark.parametrize(
+    ("data", "reason"),
+    [
+        (b'name = "a cell"\n', "not a zip archive of named arrays"),
+        (b"", "not a zip archive of named arrays"),
+        (pickle.dumps({"q": [0.0]}), "pickled objects, which polyhull never loads"),
+    ],
+    ids=["toml", "empty", "pickle"],
+)
+def test_a_frames_file_that_is_not_an_npz(work: Path, capsys: pytest.CaptureFixture[str], data: bytes, reason: str) -> None:
+    frames = work / "not_frames.toml"
+    frames.write_bytes(data)
+    err = _one_line_error(capsys, _run(CELL, frames), str(frames), reason)
+    assert "allow_pickle" not in err and "pickle.load" not in err
 
 
 @pytest.mark.parametrize(
@@ -172,9 +190,17 @@ _F = str(FRAMES)
         (["bench", "--warmup", "-1"], "--warmup"),
         (["demo", "--cycles", "0"], "--cycles"),
         (["demo", "--dt", "nan"], "--dt"),
+        (["demo", "--seed", "-1", "--cycles", "1", "--no-html", "--no-plot"], "--seed"),
+        (["bench", "--peers-resolution", "0", "--cycles", "1"], "--peers-resolution"),
+        (["bench", "--peers-full-rays"], "--peers-full-rays"),
+        (["render", _C, "--out", "x.npz", "--target", "person:walking:-1"], "--target 'person:walking:-1': person height"),
+        (["render", _C, "--out", "x.npz", "--dropout", "1.5"], "--dropout"),
         (["render", _C, "--out", "x.npz", "--stamp", "inf"], "--stamp"),
         (["render", _C, "--out", "x.npz", "--target", "no-such-mesh@1,2"], "--target"),
         (["place", _C, "--budget-seconds", "0"], "--budget-seconds"),
+        (["place", _C, "--seed", "-1"], "--seed"),
+        (["place", _C, "--workers", "0"], "--workers"),
+        (["place", _C, "--workers", "-2"], "--workers"),
         (["place", _C, "--budget-evals", "0"], "--budget-evals"),
         (["place", _C, "--scenes", "0"], "--scenes"),
         (["place", _C, "--k-of-n", "0"], "--k-of-n"),
@@ -199,6 +225,7 @@ def test_bad_flag_values(capsys: pytest.CaptureFixture[str], argv: list[str], fl
     assert rc == 2, (rc, err)
     assert "Traceback" not in captured.err
     assert err.count("\n") == 0 and err.startswith(f"polyhull {argv[0]}: error: {flag}"), err
+    assert captured.out == ""  # rejected before anything ran (no header line)
 
 
 @pytest.mark.parametrize(
@@ -207,9 +234,13 @@ def test_bad_flag_values(capsys: pytest.CaptureFixture[str], argv: list[str], fl
         (["bench", "--cycles", "many"], "--cycles"),
         (["place", _C, "--grid", "0,0,0"], "--grid"),
         (["place", _C, "--cameras", "x"], "--cameras"),
+        (["place", _C, "--cameras", "5-2"], "--cameras: expected a range A-B with A <= B, got '5-2'"),
+        (["place", _C, "--grid", "1,2"], "--grid: expected three positive integers"),
         (["place", _C, "--objective", "f9"], "--objective"),
         (["render", _C, "--out", "x.npz", "--seed", "1.5"], "--seed"),
         (["run", _C], "--frames"),
+        (["demo", "--bogus"], "unrecognized arguments: --bogus"),
+        (["run", _C, "--frames", _F, "--bogus", "x"], "unrecognized arguments: --bogus x"),
     ],
     ids=lambda a: " ".join(a) if isinstance(a, list) else a,
 )
@@ -224,3 +255,5 @@ def test_unparseable_flag_values(capsys: pytest.CaptureFixture[str], argv: list[
     errors = [line for line in captured.err.splitlines() if "error:" in line]
     assert len(errors) == 1 and errors[0].startswith(f"polyhull {argv[0]}: error:") and flag in errors[0], captured.err
     assert captured.err.rstrip().endswith(errors[0])
+    assert captured.err.startswith(f"usage: polyhull {argv[0]} ")  # the sub-command's usage
+    assert re.search(r"(--[\w-]+): \1\b", errors[0]) is None, errors[0]  # no flag named twice over

@@ -10,10 +10,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from PIL import Image
 
 from polyhull import cli
+from polyhull.cellfile import load_cell
+from polyhull.commands.demo import FAST_WALK, WALK_SHARE, walk_speed
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL_CELL = ROOT / "fixtures" / "cells" / "small_cell.toml"
@@ -23,8 +26,15 @@ def test_demo_writes_the_plot_and_the_records(tmp_path: Path, capsys: pytest.Cap
     png, records = tmp_path / "demo.png", tmp_path / "records.json"
     argv = ["demo", "--cell", str(SMALL_CELL), "--cycles", "3", "--dt", "0.2", "--no-html"]
     assert cli.main([*argv, "--plot", str(png), "--records", str(records)]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     assert f"wrote {png} (timeline plot)" in out and ".html" not in out
+    # 0.45 s for the walk in and out: the header gives its speed, and stderr warns that no
+    # person walks that fast
+    cell = load_cell(SMALL_CELL)
+    speed = walk_speed(np.asarray(cell.zone.min), np.asarray(cell.robot.base[:2]), WALK_SHARE * 3 * 0.2)
+    assert speed > FAST_WALK and f"walks in and out at {speed:.2f} m/s" in out
+    assert "faster than a person walks" in captured.err
     rows = json.loads(records.read_text())
     assert [r["stamp"] for r in rows] == pytest.approx([0.0, 0.2, 0.4])
     # The simulated person's true distance is known every cycle, and the reported distance

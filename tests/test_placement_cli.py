@@ -135,6 +135,13 @@ def test_place_errors(cell_file: Path, tmp_path: Path):
         run(str(cell_file), "--grid", "10,10")
     with pytest.raises(PolyhullError, match="--cameras"):
         place.parse_counts("x")
+    with pytest.raises(PolyhullError, match="A <= B, got '5-2'"):
+        place.parse_counts("5-2")
+    for workers in ("0", "-1"):
+        with pytest.raises(PolyhullError, match=f"--workers must be an integer >= 1, got {workers}"):
+            run(str(cell_file), "--workers", workers)
+    with pytest.raises(PolyhullError, match="--seed must be >= 0"):
+        run(str(cell_file), "--seed", "-1", "--workers", "1")
     with pytest.raises(PolyhullError, match="--importance"):
         place.parse_importance(["0,0,0,1,1:2"])
     no_mounting = tmp_path / "cell" / "bare.toml"
@@ -146,6 +153,15 @@ def test_place_errors(cell_file: Path, tmp_path: Path):
     for seconds in ("0", "-1", "nan"):
         with pytest.raises(PolyhullError, match="--budget-seconds"):
             run(str(cell_file), "--budget-seconds", seconds, "--workers", "1")
+
+
+def test_one_evaluation_is_singular(cell_file: Path, tmp_path: Path, capsys):
+    code = run(
+        str(cell_file), "--budget-evals", "1", "--grid", "8,8,6", "--workers", "1", "--scenes", "1",
+        "--out", str(tmp_path / "one"), "--no-progress",
+    )
+    assert code == 0
+    assert "in 1 evaluation, " in capsys.readouterr().out
 
 
 def test_parse_helpers():

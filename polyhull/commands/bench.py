@@ -108,10 +108,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         "--cameras",
         type=int,
         default=None,
-        help=f"replace the cameras by a ring of N (1..{MAX_CAMERAS}) of the first camera's kind",
+        help=f"replace the cameras by a ring of N (1..{MAX_CAMERAS}) of the first camera's kind "
+        "(default: the cell's cameras)",
     )
     p.add_argument(
-        "--resolution", default=None, metavar="WxH", help="rescale every camera's intrinsics to W x H px"
+        "--resolution", default=None, metavar="WxH",
+        help=f"rescale every camera's intrinsics to W x H px ({MIN_SIDE}..{MAX_SIDE} px per side; default: the cell's)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor effects and the samples (default 0)")
     p.add_argument(
@@ -138,11 +140,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         help="also run OctoMap (fresh and incremental tree) on the last N timed cycles' frames and print "
         "the side-by-side table (N = 3 without a value; 5 to 10 s per cycle and tree; needs the 'peers' extra)",
     )
-    p.add_argument("--peers-resolution", type=float, default=0.05, metavar="M", help="OctoMap voxel size [m] (default 0.05)")
+    p.add_argument(
+        "--peers-resolution", type=float, default=None, metavar="M",
+        help="with --peers: OctoMap voxel size [m] (default 0.05)",
+    )
     p.add_argument(
         "--peers-full-rays",
         action="store_true",
-        help="OctoMap casts every point's own ray (as MoveIt does) instead of one per voxel (discretize, the faster)",
+        help="with --peers: OctoMap casts every point's own ray (as MoveIt does) instead of one per voxel "
+        "(discretize, the faster)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object and nothing else")
     p.set_defaults(func=_run)
@@ -592,11 +598,20 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError(f"--repeat must be in 1..{MAX_REPEAT}, got {args.repeat}")
     if args.spin and args.pace is None:
         raise PolyhullError("--spin waits for --pace's ticks: give --pace HZ too")
+    if args.peers_resolution is not None and not args.peers:
+        raise PolyhullError("--peers-resolution is the voxel size of --peers' OctoMap: give --peers too")
+    if args.peers_full_rays and not args.peers:
+        raise PolyhullError("--peers-full-rays sets how --peers' OctoMap casts rays: give --peers too")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 
 def _fmt(x: float | None, spec: str = ".3f") -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
+
+
+def _cycles(n: int) -> str:
+    """``"1 cycle"``, ``"2 cycles"``."""
+    return f"{n} cycle" if n == 1 else f"{n} cycles"
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -606,7 +621,8 @@ def _run(args: argparse.Namespace) -> int:
         from ..peers import OctomapOptions, require_octomap
 
         require_octomap()  # before any work: a missing extra is one line
-        peers_options = OctomapOptions(resolution=args.peers_resolution, discretize=not args.peers_full_rays)
+        voxel = OctomapOptions.resolution if args.peers_resolution is None else args.peers_resolution
+        peers_options = OctomapOptions(resolution=voxel, discretize=not args.peers_full_rays)
     # anything the engine prints goes to stderr: with --json, stdout holds the object only
     with contextlib.redirect_stdout(sys.stderr):
         result = run_bench(
@@ -621,7 +637,7 @@ def _run(args: argparse.Namespace) -> int:
     paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz ({w['pace_wait']})"
     passes = "" if w["repeat"] == 1 else f", {w['repeat']} passes pooled"
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
-          f"{w['cycles']} cycles after {w['warmup']} warm-up, {paced}{passes}")
+          f"{_cycles(w['cycles'])} after {w['warmup']} warm-up, {paced}{passes}")
     m = result["machine"]
     print(f"machine: {m['cpu']}, {m['logical_cpus']} logical CPUs")
     print(f"{'stage':<16}{'median [ms]':>12}")
@@ -636,14 +652,14 @@ def _run(args: argparse.Namespace) -> int:
     print("a new monitor's first cycles: " + ", ".join(f"{ms:.1f}" for ms in result["first_cycles_ms"]) + " ms")
     p = result["person"]
     g = p["true_minus_reported_m"]
-    print(f"person: {p['cycles']} cycles, true - reported distance median {_fmt(g['median'])} m, "
-          f"max {_fmt(g['max'])} m; reported above true in {p['cycles_reported_above_true']} cycles; "
+    print(f"person: {_cycles(p['cycles'])}, true - reported distance median {_fmt(g['median'])} m, "
+          f"max {_fmt(g['max'])} m; reported above true in {_cycles(p['cycles_reported_above_true'])}; "
           f"speed scale median {_fmt(p['speed_scale']['median'], '.2f')}, min {_fmt(p['speed_scale']['min'], '.2f')}")
     x, e = p["exact_hull_gap_m"], p["engine_minus_exact_m"]
-    print(f"exact hull around the person ({p['exact_hull_grid_m'] * 100:.1f} cm grid, {p['exact_hull_cycles']} cycles, "
+    print(f"exact hull around the person ({p['exact_hull_grid_m'] * 100:.1f} cm grid, {_cycles(p['exact_hull_cycles'])}, "
           f"{p['exact_hull_seconds']:.1f} s): true distance - its distance median {_fmt(x['median'])} m, max "
           f"{_fmt(x['max'])} m (the least gap a conservative region from these cameras can have; an estimate; "
-          f"the static region nearer in {p['exact_hull_cycles_static_nearer']} cycles)")
+          f"the static region nearer in {_cycles(p['exact_hull_cycles_static_nearer'])})")
     print(f"engine against that exact hull: its distance - reported median {_fmt(e['median'])} m, "
           f"max {_fmt(e['max'])} m (what the engine loses to the exact hull)")
     pd = p["person_decides"]
@@ -665,10 +681,10 @@ def _run(args: argparse.Namespace) -> int:
     e = result["empty_cell"]
     if e is not None:
         c = e["cycle_ms"]
-        print(f"empty cell: cycle median {c['median']:.1f} ms, p99 {c['p99']:.1f} ms ({c['cycles']} cycles back to back)")
-        print(f"empty cell: {e['cycles']} cycles, kept pieces median {e['kept_pieces']['median']:.0f}, "
-              f"max {e['kept_pieces']['max']:.0f} ({e['cycles_with_kept_pieces']} cycles with any); distance "
-              f"off the static region's by > 1 cm in {e['cycles_distance_off_static']} cycles; distance median "
+        print(f"empty cell: cycle median {c['median']:.1f} ms, p99 {c['p99']:.1f} ms ({_cycles(c['cycles'])} back to back)")
+        print(f"empty cell: {_cycles(e['cycles'])}, kept pieces median {e['kept_pieces']['median']:.0f}, "
+              f"max {e['kept_pieces']['max']:.0f} ({_cycles(e['cycles_with_kept_pieces'])} with any); distance "
+              f"off the static region's by > 1 cm in {_cycles(e['cycles_distance_off_static'])}; distance median "
               f"{_fmt(e['distance_m']['median'])} m, min {_fmt(e['distance_m']['min'])} m; speed scale median "
               f"{_fmt(e['speed_scale']['median'], '.2f')}, min {_fmt(e['speed_scale']['min'], '.2f')}")
         a = e["dynamic_volume_outside_static_l"]

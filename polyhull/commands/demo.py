@@ -33,16 +33,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         ),
     )
     p.add_argument("--cell", type=Path, default=None, help="cell file (default: the embedded paper cell)")
-    p.add_argument("--cycles", type=int, default=48, help="number of cycles (default 48)")
+    p.add_argument(
+        "--cycles", type=int, default=48,
+        help="number of cycles (default 48). The person walks in and out over the first three quarters "
+        "of the run (cycles x dt), so a shorter run is a faster walk: the default walks at about 1.5 m/s",
+    )
     p.add_argument(
         "--dt", type=float, default=0.1, help="simulated time between cycles [s] (default 0.1: a 10 Hz controller)"
     )
     p.add_argument(
         "--scene-dt", type=float, default=0.3, metavar="S",
-        help="time between the HTML scene's frames [s] (default 0.3; each frame's region is a manifold "
-        "union of the cycle's pieces, about 1 s to build)",
+        help="time between the HTML scene's frames [s] (default 0.3; 0 draws every cycle, a larger "
+        "file)",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor noise (default 0)")
     p.add_argument("--html", type=Path, default=Path("polyhull-demo.html"), help="animated HTML output (default: %(default)s)")
     p.add_argument("--no-html", action="store_true", help="do not write the HTML scene")
     p.add_argument(
@@ -93,15 +97,26 @@ def robot_motion(q0: np.ndarray, lower: np.ndarray, upper: np.ndarray, t: float)
     return np.clip(q, lower + 1e-6, upper - 1e-6)
 
 
+def _walk_ends(zone_min: np.ndarray, robot_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The demo walk's start (a corner of the zone) and goal (1 m in front of the robot)."""
+    start = zone_min[:2] + 0.35
+    direction = robot_xy - start
+    dist = float(np.linalg.norm(direction))
+    return start, start + direction / max(dist, 1e-9) * max(dist - 1.0, 0.1)
+
+
+def walk_speed(zone_min: np.ndarray, robot_xy: np.ndarray, duration: float) -> float:
+    """The speed [m/s] of :func:`person_path`'s walk in and back over ``duration`` [s]."""
+    start, goal = _walk_ends(zone_min, robot_xy)
+    return 2.0 * float(np.linalg.norm(goal - start)) / max(duration, 1e-3)
+
+
 def person_path(zone_min: np.ndarray, zone_max: np.ndarray, robot_xy: np.ndarray, duration: float) -> object:
     """A walk from a corner of the zone to 1 m in front of the robot and back."""
     from ..person import PersonTrack
 
-    start = zone_min[:2] + 0.35
-    direction = robot_xy - start
-    dist = float(np.linalg.norm(direction))
-    goal = start + direction / max(dist, 1e-9) * max(dist - 1.0, 0.1)
-    speed = 2.0 * float(np.linalg.norm(goal - start)) / max(duration, 1e-3)
+    start, goal = _walk_ends(zone_min, robot_xy)
+    speed = walk_speed(zone_min, robot_xy, duration)
     half = duration / 2.0
     walk_in = PersonTrack(start=tuple(start), end=tuple(goal), speed=speed, floor_z=float(zone_min[2]))
     walk_out = PersonTrack(start=tuple(goal), end=tuple(start), speed=speed, t0=half, floor_z=float(zone_min[2]))
@@ -110,6 +125,9 @@ def person_path(zone_min: np.ndarray, zone_max: np.ndarray, robot_xy: np.ndarray
 
 WALK_SHARE = 0.75
 """Share of the demo's run during which the person is in the cell (then they have left)."""
+
+FAST_WALK = 2.0
+"""ISO 13855's approach speed [m/s]: a demo walk faster than this is warned about."""
 
 FULL_SPEED = 0.95
 """A speed scale at least this is called full speed in the behaviour line."""
@@ -143,6 +161,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.cycles < 1:
         raise PolyhullError(f"--cycles must be >= 1, got {args.cycles}")
+    if args.seed < 0:
+        raise PolyhullError(f"--seed must be >= 0, got {args.seed}")
     if not (math.isfinite(args.dt) and args.dt > 0):
         raise PolyhullError(f"--dt must be > 0 s, got {args.dt}")
     if not (math.isfinite(args.scene_dt) and args.scene_dt >= 0):
@@ -162,7 +182,8 @@ def _run(args: argparse.Namespace) -> int:
         except ImportError as exc:
             raise MissingExtraError("the demo's HTML scene (or pass --no-html)", "viewer") from exc
         recorder_class = DemoRecorder
-    print(f"polyhull demo: {cell.name} ({len(cell.cameras)} cameras), {args.cycles} cycles", flush=True)
+    cycles = "cycle" if args.cycles == 1 else "cycles"
+    print(f"polyhull demo: {cell.name} ({len(cell.cameras)} cameras), {args.cycles} {cycles}", flush=True)
     t_start = t0 = time.perf_counter()
     robot = Robot.from_spec(cell.robot)
     sim = Simulator(cell, robot=robot)
@@ -174,7 +195,18 @@ def _run(args: argparse.Namespace) -> int:
     # The person walks in and back over the first WALK_SHARE of the run, then has left.
     duration = args.cycles * args.dt
     walk_for = WALK_SHARE * duration
-    person_at = person_path(np.asarray(cell.zone.min), np.asarray(cell.zone.max), np.asarray(cell.robot.base[:2]), walk_for)
+    zone_min, robot_xy = np.asarray(cell.zone.min), np.asarray(cell.robot.base[:2])
+    person_at = person_path(zone_min, np.asarray(cell.zone.max), robot_xy, walk_for)
+    speed = walk_speed(zone_min, robot_xy, walk_for)
+    print(f"the person walks in and out at {speed:.2f} m/s over the first {walk_for:.1f} s, then has left", flush=True)
+    if speed > FAST_WALK:
+        print(
+            f"polyhull demo: warning: {speed:.1f} m/s is faster than a person walks ({FAST_WALK:g} m/s, "
+            "ISO 13855); give more --cycles or a larger --dt",
+            file=sys.stderr, flush=True,
+        )
+    print("distance: from the possibly occupied region to the robot; true: from the person's body "
+          "(- once they have left); speed: the speed scale (0 stop, 1 full speed)", flush=True)
     records: list[dict[str, Any]] = []
     scene_t: float | None = None  # the last cycle drawn in the HTML scene
     print(f"{'t [s]':>6} {'distance [m]':>12} {'true [m]':>8} {'closest link':>13} {'speed':>6} {'cycle [ms]':>10}  faults")

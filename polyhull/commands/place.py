@@ -44,6 +44,8 @@ def parse_counts(text: str) -> list[int]:
     try:
         if "-" in text:
             a, b = (int(p) for p in text.split("-", 1))
+            if b < a:
+                raise PolyhullError(f"--cameras: expected a range A-B with A <= B, got {text!r}")
             counts = list(range(a, b + 1))
         else:
             counts = [int(p) for p in text.split(",") if p.strip()]
@@ -77,6 +79,10 @@ def parse_importance(values: list[str]) -> Any:
 def _check_flags(args: argparse.Namespace) -> None:
     """Reject flag values the optimiser would refuse later (or silently replace), naming
     the flag, before anything is loaded."""
+    if args.workers < 1:
+        raise PolyhullError(f"--workers must be an integer >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise PolyhullError(f"--seed must be >= 0, got {args.seed}")
     if args.k_of_n is not None and args.k_of_n < 1:
         raise PolyhullError(f"--k-of-n must be an integer >= 1, got {args.k_of_n}")
     if args.eps is not None and not (math.isfinite(args.eps) and args.eps >= 0):
@@ -91,13 +97,15 @@ def _check_flags(args: argparse.Namespace) -> None:
 
 
 def _argument(parse: Any) -> Any:
-    """An argparse ``type`` that reports a :class:`PolyhullError` as a usage error."""
+    """An argparse ``type`` that reports a :class:`PolyhullError` as a usage error (without
+    the message's leading ``--flag:``, as argparse names the flag itself)."""
 
     def convert(text: str) -> Any:
         try:
             return parse(text)
         except PolyhullError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
+            flag, sep, reason = str(exc).partition(": ")
+            raise argparse.ArgumentTypeError(reason if sep and flag.startswith("--") else str(exc)) from None
 
     convert.__name__ = parse.__name__
     return convert
@@ -121,9 +129,10 @@ def register(subparsers: Any) -> None:
                    help=f"evaluations per camera count (default {_DEFAULT_EVALS} unless only "
                         "--budget-seconds is given)")
     p.add_argument("--budget-seconds", type=float, default=None, metavar="S",
-                   help="wall-clock budget per camera count [s]")
+                   help="wall-clock budget per camera count [s] (default: off)")
     p.add_argument("--eps", type=float, default=None, metavar="E",
-                   help="stop when best - f_opt < E (units of the objective)")
+                   help="stop when best - f_opt < E (f_opt: the objective's optimal value, a lower bound "
+                        "from the static and target volumes; units of the objective; default: off)")
     p.add_argument("--objective", choices=("f1", "f2", "f3", "f4"), default="f3",
                    help="objective to minimise (default f3)")
     p.add_argument("--grid", type=_argument(parse_grid), default=(126, 90, 66), metavar="NX,NY,NZ",
@@ -134,7 +143,7 @@ def register(subparsers: Any) -> None:
                    help="Dask distributed scheduler address (tcp://host:8786): evaluate there")
     p.add_argument("--out", type=Path, default=Path("placement"), metavar="DIR",
                    help="output directory (default ./placement)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the people sampler and CMA-ES")
+    p.add_argument("--seed", type=int, default=0, help="seed of the people sampler and CMA-ES (default 0)")
     p.add_argument("--cameras", type=_argument(parse_counts), default=None, metavar="N|A-B|A,B",
                    help="camera counts to optimise (default: the cell's count)")
     p.add_argument("--vary-fov", action="store_true",
@@ -150,7 +159,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--pixel-step", type=int, default=1, metavar="S",
                    help="render every S-th pixel (default 1: full resolution, as the paper)")
     p.add_argument("--method", choices=("cma-es", "random"), default="cma-es",
-                   help="optimiser (random: the uniform random search baseline)")
+                   help="optimiser (random: the uniform random search baseline; default %(default)s)")
     p.add_argument("--sigma0", type=float, default=0.15, metavar="S",
                    help="initial CMA-ES step size, parameters normalised to [0, 1] (default 0.15)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -277,7 +286,8 @@ def _run(args: argparse.Namespace) -> int:
     for r in results:
         rate = r.evaluations / r.seconds if r.seconds > 0 else float("nan")
         print(
-            f"  {len(r.cameras)} cameras: best {r.best_value:.4g} in {r.evaluations} evaluations, "
+            f"  {len(r.cameras)} cameras: best {r.best_value:.4g} in {r.evaluations} "
+            f"{'evaluation' if r.evaluations == 1 else 'evaluations'}, "
             f"{r.seconds:.1f} s ({rate:.2f} eval/s), stopped on {r.stop_reason}"
         )
     for path in written:

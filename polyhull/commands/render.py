@@ -118,6 +118,8 @@ def parse_target(text: str) -> TargetSpec:
         if pose not in POSES:
             raise PolyhullError(f"{what}: person pose must be one of {list(POSES)}, got {pose!r}")
         height = _numbers(fields[2], f"{what} height")[0] if len(fields) > 2 and fields[2] else 1.75
+        if not 0.5 <= height <= 2.5:  # make_person's range, checked here to name the flag
+            raise PolyhullError(f"{what}: person height must be in [0.5, 2.5] m, got {height}")
         phase = _numbers(fields[3], f"{what} phase")[0] if len(fields) > 3 and fields[3] else 0.0
         return TargetSpec("person", pose, height, phase, xy, z, yaw)
     return TargetSpec(source, xy=xy, z=z, yaw=yaw)
@@ -187,7 +189,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "--q=-0.6,1.2 when the first is negative); default: the cell's robot.q"
         ),
     )
-    p.add_argument("--target", action="append", default=[], metavar="MESH[@x,y,z,yaw]", help=_TARGET_HELP)
+    p.add_argument("--target", action="append", default=[], metavar="MESH[@x,y[,z[,yaw]]]", help=_TARGET_HELP)
     p.add_argument("--out", type=Path, required=True, help="the frames file to write (.npz)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor effects (default 0)")
     p.add_argument("--stamp", type=float, default=0.0, help="acquisition time [s] (default 0)")
@@ -196,7 +198,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     effects.add_argument("--no-noise", action="store_true", help="no depth noise")
     effects.add_argument(
         "--dropout", type=float, default=0.002, metavar="SHARE",
-        help="share of pixels dropped out as 0 (default 0.002)",
+        help="share of pixels dropped out as 0, in [0, 1] (default 0.002)",
     )
     effects.add_argument(
         "--no-out-of-range", action="store_true",
@@ -218,6 +220,8 @@ def _run(args: argparse.Namespace) -> int:
         raise PolyhullError(f"--stamp must be finite [s], got {args.stamp!r}")
     if args.seed < 0:
         raise PolyhullError(f"--seed must be >= 0, got {args.seed}")
+    if not 0.0 <= args.dropout <= 1.0:
+        raise PolyhullError(f"--dropout must be a share in [0, 1], got {args.dropout}")
     if args.exact:
         effects = SensorEffects.none()
     else:

@@ -31,8 +31,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "frames are matched by time within safety.max_frame_age; the joint state comes from "
             "robot.joint_state_topic or --joints. Runs at recorded pace unless --fast, with a "
             "progress bar, and writes one JSON object per cycle with --json-lines, the timeline plot "
-            "(distance, S_p, speed scale, cycle time, faults) with --plot, and the animated meshcat "
-            "scene with --html."
+            "(distance, S_p: the protective separation distance of ISO/TS 15066, speed scale, cycle "
+            "time, faults) with --plot, and the animated meshcat scene with --html."
+        ),
+        epilog=(
+            "Exit status: 0 when the recording was replayed to its end (or --seconds); a cycle's "
+            "faults are reported in its --json-lines record and counted in the summary, not in the "
+            "exit status. 2 on bad input (a cell file, a recording or joint-state CSV, including a "
+            "recording with no cycle to replay, a flag, or a missing optional extra); 130 when "
+            "interrupted (Ctrl-C); 141 when the reader of the output went away (a closed pipe); "
+            "1, with a traceback, is a bug in polyhull."
         ),
     )
     p.add_argument("cell", type=Path, help="cell file (TOML)")

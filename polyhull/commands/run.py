@@ -2,9 +2,10 @@
 
 One cycle per frames file, in the order given, through one monitor (a directory stands for
 its ``*.npz`` files in name order: a recording). With one file the verdict is printed in
-full (``--json``: one JSON object, SPEC section 6); with several, one line per cycle
-(``--json``: ``{"cycles": [...]}`` with one timeline record per file) and the last
-cycle's verdict in full in text mode. ``--plot`` writes the timeline plot of the cycles.
+full (``--json``: one JSON object, :meth:`polyhull.verdict.Verdict.to_json`); with several,
+one line per cycle (``--json``: ``{"cycles": [...]}`` with one timeline record per file) and
+the last cycle's verdict in full in text mode. ``--plot`` writes the timeline plot of the
+cycles.
 """
 
 from __future__ import annotations
@@ -32,6 +33,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
             "one monitor, and print the verdict (several files: a line per cycle, then the "
             "last verdict). A directory stands for its *.npz files in name order."
         ),
+        epilog=(
+            "Exit status: 0 when every cycle ran (a cycle's faults, such as a missing camera or "
+            "a contact, are reported in its output, not in the exit status); 2 on bad input (a "
+            "cell or frames file, a flag, or a missing optional extra); 130 when interrupted "
+            "(Ctrl-C); 141 when the reader of the output went away (a closed pipe); 1, with a "
+            "traceback, is a bug in polyhull."
+        ),
     )
     p.add_argument("cell", type=Path, help="cell file (TOML)")
     p.add_argument(
@@ -40,8 +48,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--json", action="store_true",
-        help='print JSON only: one verdict object (SPEC section 6) for one file, '
-        '{"cycles": [timeline records]} for several',
+        help="print JSON only: for one file, the verdict object (volume_hull, volume_robot_occlusion, "
+        "volume_r1, volume_r2, volume_region, volume_region_dynamic [m^3], min_distance, closest_link, "
+        "closest_points, speed_scale, allowed_speed, separation_distance, faults, warnings, removed, "
+        'counts, timings_ms, stamp); for several, {"cycles": [...]} with one record per file (file, '
+        "stamp, min_distance, separation_distance, speed_scale, closest_link, faults, cycle_ms, "
+        "true_distance: null)",
     )
     p.add_argument(
         "--export", type=Path, metavar="DIR",
@@ -49,7 +61,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--plot", type=Path, metavar="OUT.png",
-        help="write the timeline plot (distance, S_p, speed scale, cycle time against time)",
+        help="write the timeline plot (distance, S_p: the protective separation distance of ISO/TS 15066, "
+        "speed scale, cycle time against time)",
     )
     p.set_defaults(func=_run)
 
@@ -165,9 +178,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"frames          {files[-1]} ({len(recorded.frames)} cameras, stamp {recorded.stamp:.3f} s)")
         if missing:
             print(f"missing frames  {', '.join(missing)}")
-        print(f"hull C          {vols['volume_hull']:.3f} m^3")
-        print(f"occlusion M     {vols['volume_robot_occlusion']:.3f} m^3")
-        print(f"region R2 / R3  {vols['volume_r2']:.3f} / {vols['volume_region']:.3f} m^3")
+        print(f"hull C          {vols['volume_hull']:.3f} m^3 (seen free by no camera)")
+        print(f"occlusion M     {vols['volume_robot_occlusion']:.3f} m^3 (what the padded robot hides)")
+        print(f"region R2       {vols['volume_r2']:.3f} m^3 (C less M and the solids)")
+        print(f"region R3       {vols['volume_region']:.3f} m^3 (R2 less the plausibility rules' removals; the distance is R3's)")
         if verdict.closest_link is not None:
             where = f" to {verdict.closest_link}"
         elif verdict.faults and d == 0.0:

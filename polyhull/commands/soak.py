@@ -115,7 +115,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         ),
     )
     p.add_argument("--cell", type=Path, default=None, help="cell file (default: the embedded paper cell)")
-    p.add_argument("--cycles", type=int, default=500, help="measured cycles after the warm-up (default 500)")
+    p.add_argument(
+        "--cycles", type=int, default=500, help="measured cycles after the warm-up, at least 2 (default 500)"
+    )
     p.add_argument(
         "--warmup",
         type=int,

@@ -44,8 +44,9 @@ def register(subparsers: Any) -> None:
             "also run the monitor once: the region R (what moved in a saturated red, a "
             "dropout patch's rays no camera read in pale pink, the static blind space as a "
             "faint tint near the robot) and the closest distance are "
-            "shown; the point clouds, C(i), C, M and the removed parts are drawn hidden "
-            "(toggle them in meshcat's 'Open Controls'). With --html, write a standalone "
+            "shown; the point clouds, C(i) (each camera's occluded region: the zone it does not "
+            "see free), C (the depth hull), M (the robot occlusion) and the removed parts are "
+            "drawn hidden (toggle them in meshcat's 'Open Controls'). With --html, write a standalone "
             "HTML file and exit; otherwise serve the scene until Ctrl-C."
         ),
     )
