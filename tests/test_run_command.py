@@ -73,13 +73,19 @@ def test_text_summarises_removals_per_rule(capsys: pytest.CaptureFixture[str]) -
     assert all(" part" in line and "m^3" in line for line in lines)
 
 
-def test_the_distance_line_names_the_link_or_why_there_is_none(capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_distance_line_names_the_link_or_why_there_is_none(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """A measured cycle names its closest link; a stop verdict (here the paper cell's
-    frames, 640 x 480, for the small cell's 320 x 240 cameras) says it measured nothing."""
+    frames of the two cameras the small cell names too, 640 x 480 for its 320 x 240) says
+    it measured nothing."""
+    from polyhull.frames import load_frames, save_frames
+
     assert cli.main(["run", str(CELL), "--frames", str(FRAMES)]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("min distance"))
     assert " m to " in line and "None" not in line, line
-    wrong = ROOT / "fixtures" / "frames" / "paper_walk_000.npz"
+    paper = load_frames(ROOT / "fixtures" / "frames" / "paper_walk_000.npz")
+    wrong = save_frames(tmp_path / "wrong.npz", {n: paper.frames[n] for n in ("sw", "ne")}, paper.q, paper.stamp)
     assert cli.main(["run", str(CELL), "--frames", str(wrong)]) == 0
     out = capsys.readouterr().out.splitlines()
     line = next(x for x in out if x.startswith("min distance"))
@@ -137,3 +143,14 @@ def test_run_flags_are_checked_before_the_monitor(tmp_path: Path, capsys: pytest
         assert cli.main(["run", str(CELL), *argv]) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and words in err, err
+
+
+def test_frames_of_another_cell_are_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """A frames file with cameras the cell does not have is another cell's: one line naming
+    the file and the cameras, before the monitor is built (not a stop every cycle)."""
+    other = ROOT / "fixtures" / "frames" / "paper_walk_000.npz"
+    assert cli.main(["run", str(CELL), "--frames", str(FRAMES), str(other)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert err.count("\n") == 0 and str(other) in err and "se, nw" not in err and "nw, se" in err, err
+    assert "which the cell does not have" in err and captured.out == ""
