@@ -35,6 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         module = importlib.import_module(f"polyhull.commands.{name}")
         module.register(sub)
+    for command in sub.choices.values():
+        command.set_defaults(command_parser=command)  # who reports a sub-command's stray arguments
     return parser
 
 
@@ -58,9 +60,7 @@ def _main(argv: list[str] | None) -> int:
     args, unknown = parser.parse_known_args(argv)
     if unknown:
         # reported by the sub-command's parser: its usage, and ``polyhull demo: error: ...``
-        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        owner = sub.choices.get(args.command, parser)
-        owner.error(f"unrecognized arguments: {' '.join(unknown)}")
+        getattr(args, "command_parser", parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
