@@ -23,11 +23,14 @@ import trimesh
 from .errors import GeometryError
 from .typed import ArrayF64
 
-__all__ = ["POSES", "PersonPose", "make_person", "sample_points_inside", "PersonTrack"]
+__all__ = ["HEIGHTS", "POSES", "PersonPose", "make_person", "sample_points_inside", "PersonTrack"]
 
 PersonPose = Literal["standing", "walking", "reaching", "crouching"]
 POSES: tuple[str, ...] = get_args(PersonPose)
 """The poses :func:`make_person` builds."""
+
+HEIGHTS = (0.5, 2.5)
+"""The heights [m] :func:`make_person` builds a body for."""
 
 # Segments per full circle of spheres; 16 keeps a person at a few thousand triangles.
 _SEGMENTS = 16
@@ -145,8 +148,8 @@ def make_person(
     Returns:
         A watertight, outward-oriented trimesh in the world frame [m].
     """
-    if not (np.isfinite(height) and 0.5 <= height <= 2.5):
-        raise GeometryError(f"person height must be in [0.5, 2.5] m, got {height!r}")
+    if not (np.isfinite(height) and HEIGHTS[0] <= height <= HEIGHTS[1]):
+        raise GeometryError(f"person height must be in [{HEIGHTS[0]}, {HEIGHTS[1]}] m, got {height!r}")
     if pose not in POSES:
         raise GeometryError(f"person pose must be one of {list(POSES)}, got {pose!r}")
     xy = np.asarray(position, dtype=np.float64)

@@ -113,13 +113,13 @@ def parse_target(text: str) -> TargetSpec:
         if len(fields) > 4:
             raise PolyhullError(f"{what}: person takes at most person:POSE:HEIGHT:PHASE")
         pose = fields[1] if len(fields) > 1 and fields[1] else "standing"
-        from ..person import POSES
+        from ..person import HEIGHTS, POSES
 
         if pose not in POSES:
             raise PolyhullError(f"{what}: person pose must be one of {list(POSES)}, got {pose!r}")
         height = _numbers(fields[2], f"{what} height")[0] if len(fields) > 2 and fields[2] else 1.75
-        if not 0.5 <= height <= 2.5:  # make_person's range, checked here to name the flag
-            raise PolyhullError(f"{what}: person height must be in [0.5, 2.5] m, got {height}")
+        if not HEIGHTS[0] <= height <= HEIGHTS[1]:  # make_person's range, checked here to name the flag
+            raise PolyhullError(f"{what}: person height must be in [{HEIGHTS[0]}, {HEIGHTS[1]}] m, got {height}")
         phase = _numbers(fields[3], f"{what} phase")[0] if len(fields) > 3 and fields[3] else 0.0
         return TargetSpec("person", pose, height, phase, xy, z, yaw)
     return TargetSpec(source, xy=xy, z=z, yaw=yaw)
