@@ -12,7 +12,7 @@ A frames file is ``.npz``: one float32 (H, W) depth array [m] per camera name, p
 from __future__ import annotations
 
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +21,7 @@ import numpy as np
 from .errors import FrameError
 from .typed import ArrayF32, ArrayF64
 
-__all__ = ["DepthFrame", "FramesFile", "load_frames", "save_frames"]
+__all__ = ["DepthFrame", "FramesFile", "check_cameras", "load_frames", "save_frames"]
 
 _RESERVED = ("q", "stamp")
 
@@ -117,6 +117,22 @@ def open_npz(path: Path, error: type[Exception], what: str) -> np.lib.npyio.NpzF
     if not isinstance(data, np.lib.npyio.NpzFile):
         raise error(f"{path}: not an .npz {what} (one array, not named fields)")
     return data
+
+
+def check_cameras(path: str | Path, recorded: FramesFile, cameras: Iterable[str]) -> None:
+    """Refuse a frames file with a camera the cell does not have: frames of another cell
+    (a camera missing from the file is a fault of its cycle, a stop, not an input error).
+
+    Raises:
+        FrameError: Naming the file, its unknown cameras and the cell's.
+    """
+    known = set(cameras)
+    unknown = sorted(set(recorded.frames) - known)
+    if unknown:
+        raise FrameError(
+            f"{path}: frames of camera{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}, which the "
+            f"cell does not have (its cameras: {', '.join(sorted(known))}): frames of another cell?"
+        )
 
 
 def load_frames(path: str | Path) -> FramesFile:

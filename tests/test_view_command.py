@@ -179,6 +179,10 @@ def test_bad_input_raises_polyhull_errors(tmp_path: Path, small_frames: Path) ->
     # Frames of the small cell do not fit the paper cell's cameras.
     with pytest.raises(FrameError):
         run_view(str(PAPER_CELL), "--frames", str(small_frames), "--html", str(tmp_path / "x.html"))
+    # The paper cell's frames hold two cameras the small cell does not have.
+    paper_frames = ROOT / "fixtures" / "frames" / "paper_walk_000.npz"
+    with pytest.raises(FrameError, match="frames of cameras nw, se, which the cell does not have"):
+        run_view(str(SMALL_CELL), "--frames", str(paper_frames), "--html", str(tmp_path / "x.html"))
     assert not (tmp_path / "x.html").exists()
 
 

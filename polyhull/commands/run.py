@@ -129,7 +129,7 @@ def _build_regions(verdict: object, names: tuple[str, ...]) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from ..cellfile import load_cell
-    from ..frames import load_frames
+    from ..frames import check_cameras, load_frames
     from ..monitor import Monitor
     from ..timeline import plot_timeline, record_of
 
@@ -138,16 +138,8 @@ def _run(args: argparse.Namespace) -> int:
     cell = load_cell(args.cell)
     files = frames_files(args.frames)
     recordings = [load_frames(f) for f in files]  # every file is checked before the first cycle
-    cameras = {c.name for c in cell.cameras}
     for path, recorded in zip(files, recordings, strict=True):
-        # a camera missing from a file is a fault of that cycle (a stop); a camera the cell
-        # does not have is frames of another cell
-        unknown = sorted(set(recorded.frames) - cameras)
-        if unknown:
-            raise PolyhullError(
-                f"{path}: frames of camera{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}, which the "
-                f"cell does not have (its cameras: {', '.join(sorted(cameras))}): frames of another cell?"
-            )
+        check_cameras(path, recorded, (c.name for c in cell.cameras))
     monitor = Monitor(cell)
     records = []
     verdict = None

@@ -85,7 +85,7 @@ def _import_viewer() -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     from ..cellfile import load_cell
-    from ..frames import load_frames
+    from ..frames import check_cameras, load_frames
 
     if args.max_points < 1:
         raise PolyhullError(f"--max-points must be >= 1, got {args.max_points}")
@@ -98,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
     q = None
     if args.frames is not None:
         recorded = load_frames(args.frames)
+        check_cameras(args.frames, recorded, (c.name for c in cell.cameras))
         frames, q = recorded.frames, recorded.q
         try:
             from ..monitor import Monitor
