@@ -205,8 +205,7 @@ def _run(args: argparse.Namespace) -> int:
             "ISO 13855); give more --cycles or a larger --dt",
             file=sys.stderr, flush=True,
         )
-    print("distance: from the possibly occupied region to the robot; true: from the person's body "
-          "(- once they have left); speed: the speed scale (0 stop, 1 full speed)", flush=True)
+    print("distance: region to robot; true: the person's body to robot (- once gone); speed: 0 stop, 1 full", flush=True)
     records: list[dict[str, Any]] = []
     scene_t: float | None = None  # the last cycle drawn in the HTML scene
     print(f"{'t [s]':>6} {'distance [m]':>12} {'true [m]':>8} {'closest link':>13} {'speed':>6} {'cycle [ms]':>10}  faults")
