@@ -49,7 +49,7 @@ def test_help_does_not_import_the_engine() -> None:
     assert result.stdout.strip() == "[]"
 
 
-def _help(command: str, capsys, monkeypatch) -> str:  # noqa: ANN001
+def _help(command: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> str:
     """``polyhull COMMAND --help`` on one line (a wide terminal: argparse wraps at hyphens)."""
     from polyhull import cli
 
@@ -93,14 +93,16 @@ def _help(command: str, capsys, monkeypatch) -> str:  # noqa: ANN001
         ("demo", ["seed of the sensor noise (default 0)"]),
     ],
 )
-def test_help_says_what_the_code_enforces(command: str, phrases: list[str], capsys, monkeypatch) -> None:  # noqa: ANN001
+def test_help_says_what_the_code_enforces(
+    command: str, phrases: list[str], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     text = _help(command, capsys, monkeypatch)
     for phrase in phrases:
         assert phrase in text, (phrase, text)
     assert "SPEC" not in text and "MESH[@x,y,z,yaw]" not in text
 
 
-def test_one_cycle_is_singular(capsys) -> None:  # noqa: ANN001
+def test_one_cycle_is_singular(capsys: pytest.CaptureFixture[str]) -> None:
     from pathlib import Path
 
     from polyhull import cli
