@@ -66,7 +66,7 @@ def _help(command: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.
         (
             "run",
             [
-                "the verdict object (volume_hull,", "min_distance, closest_link,", "speed_scale,",
+                "the verdict object (volumes [m^3], the distance, closest link",
                 "S_p: the protective separation distance of ISO/TS 15066",
                 "Exit status: 0 when every cycle ran", "not in the exit status); 2 on bad input",
                 "130 when interrupted",
@@ -111,6 +111,6 @@ def test_one_cycle_is_singular(capsys: pytest.CaptureFixture[str]) -> None:
     assert cli.main(["demo", "--cell", str(cell), "--cycles", "1", "--no-html", "--no-plot"]) == 0
     header = capsys.readouterr().out.splitlines()[0]
     assert header.endswith("(2 cameras), 1 cycle"), header
-    from polyhull.commands.bench import _cycles
+    from polyhull.commands import counted
 
-    assert (_cycles(1), _cycles(0), _cycles(3)) == ("1 cycle", "0 cycles", "3 cycles")
+    assert (counted(1, "cycle"), counted(0, "cycle"), counted(3, "evaluation")) == ("1 cycle", "0 cycles", "3 evaluations")

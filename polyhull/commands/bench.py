@@ -57,6 +57,7 @@ from ..oracles import (
     exact_hull,
     tightness_and_misses,
 )
+from . import counted
 
 __all__ = ["register", "run_bench", "ring_cameras", "rescale_camera", "parse_resolution"]
 
@@ -609,11 +610,6 @@ def _fmt(x: float | None, spec: str = ".3f") -> str:
     return "-" if x is None or not math.isfinite(x) else format(x, spec)
 
 
-def _cycles(n: int) -> str:
-    """``"1 cycle"``, ``"2 cycles"``."""
-    return f"{n} cycle" if n == 1 else f"{n} cycles"
-
-
 def _run(args: argparse.Namespace) -> int:
     resolution = _check(args)
     peers_options = None
@@ -637,7 +633,7 @@ def _run(args: argparse.Namespace) -> int:
     paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz ({w['pace_wait']})"
     passes = "" if w["repeat"] == 1 else f", {w['repeat']} passes pooled"
     print(f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
-          f"{_cycles(w['cycles'])} after {w['warmup']} warm-up, {paced}{passes}")
+          f"{counted(w['cycles'], 'cycle')} after {w['warmup']} warm-up, {paced}{passes}")
     m = result["machine"]
     print(f"machine: {m['cpu']}, {m['logical_cpus']} logical CPUs")
     print(f"{'stage':<16}{'median [ms]':>12}")
@@ -652,14 +648,14 @@ def _run(args: argparse.Namespace) -> int:
     print("a new monitor's first cycles: " + ", ".join(f"{ms:.1f}" for ms in result["first_cycles_ms"]) + " ms")
     p = result["person"]
     g = p["true_minus_reported_m"]
-    print(f"person: {_cycles(p['cycles'])}, true - reported distance median {_fmt(g['median'])} m, "
-          f"max {_fmt(g['max'])} m; reported above true in {_cycles(p['cycles_reported_above_true'])}; "
+    print(f"person: {counted(p['cycles'], 'cycle')}, true - reported distance median {_fmt(g['median'])} m, "
+          f"max {_fmt(g['max'])} m; reported above true in {counted(p['cycles_reported_above_true'], 'cycle')}; "
           f"speed scale median {_fmt(p['speed_scale']['median'], '.2f')}, min {_fmt(p['speed_scale']['min'], '.2f')}")
     x, e = p["exact_hull_gap_m"], p["engine_minus_exact_m"]
-    print(f"exact hull around the person ({p['exact_hull_grid_m'] * 100:.1f} cm grid, {_cycles(p['exact_hull_cycles'])}, "
+    print(f"exact hull around the person ({p['exact_hull_grid_m'] * 100:.1f} cm grid, {counted(p['exact_hull_cycles'], 'cycle')}, "
           f"{p['exact_hull_seconds']:.1f} s): true distance - its distance median {_fmt(x['median'])} m, max "
           f"{_fmt(x['max'])} m (the least gap a conservative region from these cameras can have; an estimate; "
-          f"the static region nearer in {_cycles(p['exact_hull_cycles_static_nearer'])})")
+          f"the static region nearer in {counted(p['exact_hull_cycles_static_nearer'], 'cycle')})")
     print(f"engine against that exact hull: its distance - reported median {_fmt(e['median'])} m, "
           f"max {_fmt(e['max'])} m (what the engine loses to the exact hull)")
     pd = p["person_decides"]
@@ -681,10 +677,10 @@ def _run(args: argparse.Namespace) -> int:
     e = result["empty_cell"]
     if e is not None:
         c = e["cycle_ms"]
-        print(f"empty cell: cycle median {c['median']:.1f} ms, p99 {c['p99']:.1f} ms ({_cycles(c['cycles'])} back to back)")
-        print(f"empty cell: {_cycles(e['cycles'])}, kept pieces median {e['kept_pieces']['median']:.0f}, "
-              f"max {e['kept_pieces']['max']:.0f} ({_cycles(e['cycles_with_kept_pieces'])} with any); distance "
-              f"off the static region's by > 1 cm in {_cycles(e['cycles_distance_off_static'])}; distance median "
+        print(f"empty cell: cycle median {c['median']:.1f} ms, p99 {c['p99']:.1f} ms ({counted(c['cycles'], 'cycle')} back to back)")
+        print(f"empty cell: {counted(e['cycles'], 'cycle')}, kept pieces median {e['kept_pieces']['median']:.0f}, "
+              f"max {e['kept_pieces']['max']:.0f} ({counted(e['cycles_with_kept_pieces'], 'cycle')} with any); distance "
+              f"off the static region's by > 1 cm in {counted(e['cycles_distance_off_static'], 'cycle')}; distance median "
               f"{_fmt(e['distance_m']['median'])} m, min {_fmt(e['distance_m']['min'])} m; speed scale median "
               f"{_fmt(e['speed_scale']['median'], '.2f')}, min {_fmt(e['speed_scale']['min'], '.2f')}")
         a = e["dynamic_volume_outside_static_l"]

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MissingExtraError, PolyhullError
+from . import counted
 
 __all__ = ["register", "robot_motion", "person_path", "TrueDistance"]
 
@@ -182,8 +183,7 @@ def _run(args: argparse.Namespace) -> int:
         except ImportError as exc:
             raise MissingExtraError("the demo's HTML scene (or pass --no-html)", "viewer") from exc
         recorder_class = DemoRecorder
-    cycles = "cycle" if args.cycles == 1 else "cycles"
-    print(f"polyhull demo: {cell.name} ({len(cell.cameras)} cameras), {args.cycles} {cycles}", flush=True)
+    print(f"polyhull demo: {cell.name} ({len(cell.cameras)} cameras), {counted(args.cycles, 'cycle')}", flush=True)
     t_start = t0 = time.perf_counter()
     robot = Robot.from_spec(cell.robot)
     sim = Simulator(cell, robot=robot)

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import PolyhullError
+from . import counted
 
 __all__ = ["register", "parse_grid", "parse_counts", "parse_importance"]
 
@@ -286,8 +287,7 @@ def _run(args: argparse.Namespace) -> int:
     for r in results:
         rate = r.evaluations / r.seconds if r.seconds > 0 else float("nan")
         print(
-            f"  {len(r.cameras)} cameras: best {r.best_value:.4g} in {r.evaluations} "
-            f"{'evaluation' if r.evaluations == 1 else 'evaluations'}, "
+            f"  {len(r.cameras)} cameras: best {r.best_value:.4g} in {counted(r.evaluations, 'evaluation')}, "
             f"{r.seconds:.1f} s ({rate:.2f} eval/s), stopped on {r.stop_reason}"
         )
     for path in written:

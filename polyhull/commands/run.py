@@ -48,12 +48,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     )
     p.add_argument(
         "--json", action="store_true",
-        help="print JSON only: for one file, the verdict object (volume_hull, volume_robot_occlusion, "
-        "volume_r1, volume_r2, volume_region, volume_region_dynamic [m^3], min_distance, closest_link, "
-        "closest_points, speed_scale, allowed_speed, separation_distance, faults, warnings, removed, "
-        'counts, timings_ms, stamp); for several, {"cycles": [...]} with one record per file (file, '
-        "stamp, min_distance, separation_distance, speed_scale, closest_link, faults, cycle_ms, "
-        "true_distance: null)",
+        help="print JSON only: for one file, the verdict object (volumes [m^3], the distance, closest link "
+        "and points, speed scale, allowed speed, S_p, faults, warnings, removals, counts, timings, stamp); "
+        'for several, {"cycles": [...]} with one timeline record per file',
     )
     p.add_argument(
         "--export", type=Path, metavar="DIR",
