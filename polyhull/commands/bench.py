@@ -10,8 +10,9 @@ Five parts, on one monitor (the static model is built once):
    moving links against the reported distance (reported must never exceed true), and both
    against the distance of the exact depth hull's part that holds the person
    (:class:`polyhull.oracles.ExactHullGap`: the gap no conservative region from these cameras can close),
-   or of the static region where it is nearer (blind space no camera sees is in every such
-   region; a ring of cameras aimed low leaves some over the robot);
+   or of the static region R3_static where it is nearer (blind space, static shadows and
+   the noise sheets a person could stand in, such as the one in front of the rack: the
+   engine's region always contains it);
 3. tightness and misses on the last person cycle, by a Monte-Carlo point oracle: the exact
    depth hull C of the cycle's frames against the engine's region R2, and R2 against the
    exact hull with the static band (the engine's declared tolerance, :func:`polyhull.oracles.banded_free`);
@@ -458,8 +459,9 @@ def _person_figures(
         for (frames, q, _, person), v, true, gap in zip(inputs, verdicts, trues, gap_of, strict=True):
             d, cut = oracle.measure(frames, sim.render_exact(q), robot.link_transforms(q), person)
             clipped += int(cut)
-            # the static region (blind space, static shadows) is in every region from these
-            # cameras: where it is nearer than the person's part, it decides the distance
+            # the static region (blind space, static shadows, kept noise sheets) is in the
+            # engine's region every cycle: where it is nearer than the person's part, it
+            # decides the distance
             static = distance_model.distance(
                 robot.link_transforms(q), static=monitor.static.bvh, static_contains=monitor._static_contains
             ).distance
@@ -482,8 +484,8 @@ def _person_figures(
         "exact_hull_cycles_clipped": clipped,
         "exact_hull_cycles_static_nearer": static_nearer,
         # the cycles where the exact hull's part that holds the person is nearer than the
-        # static region: the person decides the distance any region from these cameras can
-        # report (elsewhere the blind space does, and every region's gap is at least its)
+        # static region: the person decides the distance the engine can report (elsewhere
+        # the static region does, and the engine's gap is at least its)
         "person_decides": {
             "cycles": len(decides),
             "true_minus_reported_m": {k: v for k, v in _stats([a for a, _ in decides]).items() if k != "min"},
