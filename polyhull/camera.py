@@ -1,6 +1,6 @@
 """Pinhole cameras: intrinsics, pose, projection and the frustum.
 
-Conventions (SPEC section 1): the camera frame is the OpenCV / ROS optical frame (x right,
+Conventions: the camera frame is the OpenCV / ROS optical frame (x right,
 y down, z forward); the centre of pixel (u, v) is at integer coordinates (u, v) and the
 pixel covers [u - 0.5, u + 0.5) x [v - 0.5, v + 0.5); depth is z-depth in [m].
 

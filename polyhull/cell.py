@@ -256,7 +256,8 @@ class ReconstructionParams:
         tile: Pixels per tile side of the per-cycle pieces: the unexplained pixels of a
             tile start as one frustum piece, which the carving then splits.
         k_of_n: A point is free only if at least this many cameras see it free.
-        shadow_memory: Keep the part of M touching the previous region (SPEC section 4).
+        shadow_memory: Keep the part of M touching the previous region
+            (:mod:`polyhull.engine.memory`).
     """
 
     block: int = 2
@@ -292,7 +293,8 @@ class EntryArea:
 
 @dataclass(frozen=True)
 class PlausibilityParams:
-    """The plausibility rules that turn R2 into R3 (SPEC section 2); each is switchable.
+    """The plausibility rules that turn R2 into R3 (:mod:`polyhull.plausibility`); each is
+    switchable.
 
     Attributes:
         floor_shell: Remove the depth-noise sheet above the floor, except under anything

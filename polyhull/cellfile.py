@@ -1,4 +1,4 @@
-"""Read a work cell from a TOML cell file (SPEC section 6).
+"""Read a work cell from a TOML cell file (README, "Your own cell").
 
 A cell file describes the zone Z, the cameras, the static obstacles, the robot, the
 parameter sections and the camera mounting surfaces; ``fixtures/cells/paper_cell.toml`` is a
@@ -718,7 +718,7 @@ def cell_from_mapping(data: Mapping[str, Any], path: str | os.PathLike[str]) -> 
 
 
 def load_cell(path: str | os.PathLike[str]) -> Cell:
-    """Read a TOML cell file (SPEC section 6) into a :class:`~polyhull.cell.Cell`.
+    """Read a TOML cell file into a :class:`~polyhull.cell.Cell`.
 
     Relative paths in the file (robot URDF, obstacle meshes, intrinsics files) start at the
     file's directory. Loading is pure: a bad file raises and changes nothing.

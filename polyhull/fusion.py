@@ -1,4 +1,4 @@
-"""Fusion of camera free regions (SPEC section 2, paper 3.2 and 4): the static hull and placement.
+"""Fusion of camera free regions (paper 3.2 and 4): the static hull and placement.
 
 ``C = Z \\ F`` with ``F = union_i F(i)``; with the k-of-n rule a point is free only if at
 least k cameras see it free, i.e. ``F_k = union over k-subsets S of intersection_{i in S} F(i)``.

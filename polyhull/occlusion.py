@@ -1,4 +1,4 @@
-"""The robot occlusion M as a manifold (paper 3.2, SPEC section 2), for inspection.
+"""The robot occlusion M as a manifold (paper 3.2), for inspection.
 
 ``M = F_static \\ F_static+robot``: points some camera sees free in the empty cell but no
 camera sees free once the robot stands at q. With ``S_i`` the robot's shadow from camera i

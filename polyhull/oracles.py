@@ -1,5 +1,5 @@
 """Independent oracles of the engine's sets, by point classification (the bench's checks
-and the tests'): which points lie in the exact depth hull C of SPEC section 2, in the
+and the tests'): which points lie in the exact depth hull C (README, "What it computes"), in the
 padded robot's shadow and occlusion M, in the engine's R2; the tightness and misses of a
 verdict's region; the dynamic part's volume outside the static hull; and the distance of
 the exact hull's part that holds a person (:class:`ExactHullGap`).
@@ -73,7 +73,8 @@ FreeDepth = Callable[[Any, np.ndarray], np.ndarray]
 
 
 def exact_free(static_camera: Any, depth: np.ndarray) -> np.ndarray:
-    """The exact per-pixel free depth of SPEC section 2, ``min(D, B) - tau(D)`` [m]."""
+    """The exact per-pixel free depth ``min(D, B) - tau(D)`` [m]
+    (:func:`polyhull.regions.free_depth`)."""
     from .regions import free_depth
 
     return free_depth(static_camera.camera, depth, static_camera.reference)
@@ -121,7 +122,7 @@ def exact_hull(
 
     A point frees in a camera when in the image, ``z >= near`` and ``z <= f[v, u]`` with the
     per-pixel free depth ``f = free(static camera, depth)`` (default :func:`exact_free`, the
-    exact one of SPEC section 2; :func:`banded_free` gives the exact hull with the static
+    exact one, ``min(D, B) - tau(D)``; :func:`banded_free` gives the exact hull with the static
     band); it is in C when fewer than k cameras free it.
     """
     (hull,), solid = exact_hulls(monitor, frames, points, (free,))
@@ -181,7 +182,7 @@ def padded_robot_occlusion(
     monitor: Any, points: np.ndarray, band: bool = False, frames: Mapping[str, Any] | None = None
 ) -> np.ndarray:
     """(P,) whether each point lies in the padded robot's occlusion M of the monitor's last
-    cycle by its definition (SPEC section 2, ``M = F_static minus F_static+robot``, k of n):
+    cycle by its definition (``M = F_static minus F_static+robot``, k of n):
     at least k cameras free it in the empty cell, by the exact free depth of the reference
     ``B - tau(B)``, and fewer once the padded robot's covered pixels free only up to its
     shadow start. Stricter than :func:`padded_robot_shadow` (some camera's shadow), which
@@ -344,7 +345,7 @@ class ExactHullGap:
 
     - the exact depth hull C: fewer than k cameras free it with the exact per-pixel free
       depth of the measured frames (:func:`exact_free`, as :func:`exact_hull`);
-    - outside the unpadded robot's occlusion M (SPEC section 2: ``M = F_static \ F_static+robot``):
+    - outside the unpadded robot's occlusion M (by definition ``M = F_static \ F_static+robot``):
       it is not the case that at least k cameras free it in the empty cell (free depth of
       the reference) while fewer than k free it with the robot at q (free depth of the
       noise-free depth of the static scene plus the robot, ``Simulator.render_exact(q)``,

@@ -1,7 +1,7 @@
 """Plausibility rules: the artifact filters that turn R2 into R3 (paper section 3.1).
 
 ``R3 = R2 \\ union_k A(k)`` where each ``A(k)`` is a connected component of R2 that fails a
-plausibility rule (SPEC section 2). This is the only step of polyhull allowed to remove
+plausibility rule (listed below). This is the only step of polyhull allowed to remove
 possibly occupied space, so every rule here is written to err on one side only: when a test
 is approximate, the approximation can only make the rule fire *less* often (keep more).
 

@@ -1,7 +1,7 @@
 """Ray casting: z-depth images of triangle meshes and the floor plane.
 
 This is the core shared by the depth simulator (:mod:`polyhull.simulator`), the monitor
-(the reference depth ``B_i`` of SPEC section 2) and the placement optimiser.
+(the reference depth ``B_i``, the empty cell's) and the placement optimiser.
 
 Meshes go through trimesh's Embree intersector (``trimesh.ray.ray_pyembree``, backed by
 ``embreex``), which only answers *which triangle* a ray hits first; the hit distance is then
@@ -356,7 +356,7 @@ def render_depth(
 
 
 def render_reference(cell: Cell, step: int = 1) -> dict[str, ArrayF32]:
-    """The reference depth ``B_i`` of every camera of ``cell`` (SPEC section 2).
+    """The reference depth ``B_i`` of every camera of ``cell``.
 
     The empty cell: the floor (the plane z = zone min z) and every static obstacle; no
     robot, no people. +inf where a reference ray hits nothing.

@@ -1,4 +1,4 @@
-"""Free depth per pixel, and camera free regions F(i) as manifolds (SPEC section 2).
+"""Free depth per pixel, and camera free regions F(i) as manifolds.
 
 The free depth of pixel p is ``f(p) = min(D(p), B(p)) - tau(D(p))`` for a valid depth camera
 pixel and ``near`` (nothing free) for an invalid one; for a colour camera a changed pixel
@@ -49,7 +49,7 @@ def consistent_band(
     """Per-pixel band ``[T, U]`` [m] of depths consistent with reference depth ``B``.
 
     ``T = h^-1(B)`` with ``h(D) = D + width * tau(D)`` (increasing), so with ``width = 1``
-    ``D < T`` iff ``D < B - tau(D)``, the SPEC's "changed" test. ``U = min(B + width *
+    ``D < T`` iff ``D < B - tau(D)``, the test of a changed pixel. ``U = min(B + width *
     tau(B), far)``; ``U = far`` where nothing is hit (``B = +inf``).
     """
     a = width * camera.tolerance_sigmas * camera.noise  # width * tau = max(a D^2, .. t_min)
@@ -68,7 +68,7 @@ def consistent_band(
 
 
 def free_depth(camera: Camera, depth: ArrayF64, reference: ArrayF64) -> ArrayF64:
-    """Exact free depth per pixel [m] (SPEC section 2), float64 (H, W).
+    """Exact free depth per pixel [m] (as defined in the module docstring), float64 (H, W).
 
     Args:
         camera: The camera (range, noise model, kind).

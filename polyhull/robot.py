@@ -2,7 +2,7 @@
 
 A :class:`Robot` is read from a URDF with yourdfpy. Every link with a ``<collision>``
 element (or, failing that, a ``<visual>`` one) contributes collision geometry, in two forms
-that both **contain** the true shapes, so the robot body may only grow (SPEC section 2):
+that both **contain** the true shapes, so the robot body may only grow:
 
 * :meth:`Robot.link_geometry`: one watertight mesh per link (the pieces of a link are
   united with manifold3d), for ray casting, volumes and mesh booleans;

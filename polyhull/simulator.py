@@ -210,7 +210,7 @@ def _load_robot(cell: Cell) -> RobotModel | None:
 
 
 class Simulator:
-    """Ray-cast depth frames of a cell (SPEC section 6: ``ph.Simulator(cell).render(...)``).
+    """Ray-cast depth frames of a cell: ``ph.Simulator(cell).render(...)``.
 
     The Embree scene of the static obstacles and the reference depth of every camera are
     built once; each :meth:`render` only traces the robot and the targets, inside the image

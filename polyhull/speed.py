@@ -1,6 +1,6 @@
 """Speed and separation monitoring: from the minimum distance to a robot speed.
 
-Two profiles (SPEC section 3):
+Two profiles:
 
 - ``iso``: ISO/TS 15066 protective separation distance
   ``S_p = v_h (T_r + T_s) + v_r T_r + S_s + C + Z_d + Z_r`` with ``S_s = v_r T_s / 2``

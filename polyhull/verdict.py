@@ -308,7 +308,7 @@ class Verdict:
         }
 
     def to_json(self) -> dict[str, Any]:
-        """The JSON object of ``polyhull run --json`` (SPEC section 6)."""
+        """The JSON object of ``polyhull run --json``."""
         out: dict[str, Any] = dict(self.volumes())
         out.update(
             {

@@ -122,7 +122,7 @@ def manifold_contains(
 
 def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray) -> np.ndarray:  # type: ignore[type-arg]
     """The exact per-pixel oracle: a point is possibly occupied unless k cameras (the cell's
-    k-of-n rule) see it in front of the SPEC's free depth ``min(D, B) - tau(D)`` of the
+    k-of-n rule) see it in front of the exact free depth ``min(D, B) - tau(D)`` of the
     pixel it projects to."""
     from polyhull.regions import free_depth
 
@@ -143,7 +143,7 @@ def exactly_possibly_occupied(monitor: Monitor, frames: dict, points: np.ndarray
 
 def in_robot_occlusion(monitor: Monitor, points: np.ndarray) -> np.ndarray:
     """(P,) whether points lie in the padded robot's occlusion M of the monitor's last cycle
-    by its definition (SPEC section 2, ``M = F_static minus F_static+robot``, k of n): at
+    by its definition (``M = F_static minus F_static+robot``, k of n): at
     least k cameras free them in the empty cell, fewer with the robot
     (:func:`polyhull.oracles.padded_robot_occlusion`). Stricter than "in some
     camera's robot shadow", which excuses a point one camera cannot see though another

@@ -12,11 +12,11 @@ within 0.7 m of the first (drawn after everything else, so a seed's first person
 motion and sensor effects are those of the one-person walk).
 Every cycle that does not stop for a contact is checked by the same oracles as the tests:
 
-- 6,000 points (half in the zone, half around the person): each that the SPEC's exact
-  per-pixel free depth leaves possibly occupied lies in the engine's R2, in a solid, or in
-  the padded robot's occlusion M by its definition; those M holds only with the engine's
-  declared static band or flying-pixel tolerances are counted apart ("excused"), the rest
-  are misses;
+- 6,000 points (half in the zone, half around the person): each that the exact
+  per-pixel free depth ``min(D, B) - tau(D)`` leaves possibly occupied lies in the
+  engine's R2, in a solid, or in the padded robot's occlusion M by its definition; those
+  M holds only with the engine's declared static band or flying-pixel tolerances are
+  counted apart ("excused"), the rest are misses;
 - 300 points of the person's body: in R3, in M, in a solid, or freed by the exact free
   depth (a reading between two pixels' rays).
 

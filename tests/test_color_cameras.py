@@ -1,4 +1,4 @@
-"""Colour cameras (binary depth, SPEC section 2) in the monitor: the paper cell's four
+"""Colour cameras (binary depth) in the monitor: the paper cell's four
 cameras as colour cameras (320 x 240).
 
 A changed pixel of a colour camera frees nothing, so in the empty cell with the robot a

@@ -1,4 +1,4 @@
-"""The fault matrix of SPEC section 4: one row per failure.
+"""The fault matrix (README, "Never raises, never silent"): one row per failure.
 
 Every row drives the small-cell monitor into one failure and checks the whole contract:
 the cycle stops the robot (``speed_scale == 0``), one fault names the failure in words a

@@ -1,6 +1,7 @@
-"""The shadow memory holds only ``C n M`` (SPEC section 4), with ``M`` by its definition.
+"""The shadow memory holds only ``C n M`` (:mod:`polyhull.engine.memory`), with ``M`` by its
+definition.
 
-``M = F_static \\ F_static+robot`` (SPEC section 2, here with the padded robot): what some k
+``M = F_static \\ F_static+robot`` (here with the padded robot): what some k
 cameras see free in the empty cell and fewer than k see free with the robot in it. The
 memory's pieces start as one camera's robot shadow and used to be carved by the frame's
 free depth only, so they also held space that other cameras would see free with the robot

@@ -1,7 +1,7 @@
 """Refinement keeps the shadow memory's part within reach of the seeds, and drops the rest.
 
-The memory (SPEC section 4) is the part of C n M within a person's reach (``v_h dt``,
-Euclidean) of the previous cycle's seeds. Its pieces are carved coarsely and kept whole
+The memory (:mod:`polyhull.engine.memory`) is the part of C n M within a person's reach
+(``v_h dt``, Euclidean) of the previous cycle's seeds. Its pieces are carved coarsely and kept whole
 when they come within reach, so a piece that does at a corner stands for space well
 beyond it. Where such pieces decide the distance, refinement carves them finely and keeps
 only the children within reach. The demo's walk (0.3 s cycles) has such pieces at 0.9 s.

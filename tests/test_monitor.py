@@ -1,4 +1,5 @@
-"""Monitor fault paths (SPEC section 4): every fault stops the robot, is named, and latches."""
+"""Monitor fault paths (README, "Never raises, never silent"): every fault stops the robot, is
+named, and latches."""
 
 from __future__ import annotations
 
@@ -214,7 +215,7 @@ def test_exceptions_become_verdicts(fresh_monitor: Monitor, monkeypatch: pytest.
     ids=["str", "csv", "object", "dict", "ragged", "shape-1x6", "complex", "short"],
 )
 def test_hostile_joint_state_is_a_named_fault(fresh_monitor: Monitor, q: object) -> None:
-    """SPEC section 4: step never raises; a bad q gives speed 0 and a joint-state fault,
+    """``Monitor.step`` never raises; a bad q gives speed 0 and a joint-state fault,
     without a warning and without echoing a cast of the bad input."""
     import warnings
 

@@ -5,10 +5,10 @@ beside it. Hypothesis, derandomized (see conftest); ``HYPOTHESIS_PROFILE=explore
 
 Two oracles, both independent of the engine's geometry:
 
-- every point the SPEC's exact per-pixel free depth leaves possibly occupied lies in the
-  engine's R2 (C_static or a dynamic piece), or in the padded robot's occlusion M (by its
-  definition, or with the engine's declared static band and flying-pixel tolerances), or
-  in a solid;
+- every point the exact per-pixel free depth ``min(D, B) - tau(D)`` leaves possibly
+  occupied lies in the engine's R2 (C_static or a dynamic piece), or in the padded
+  robot's occlusion M (by its definition, or with the engine's declared static band and
+  flying-pixel tolerances), or in a solid;
 - every point of the person's body lies in R3, or in that shadow or a solid, or is one the
   exact free depth frees (a body point between two pixels' rays: the cameras' resolution).
 
@@ -141,10 +141,10 @@ def test_people_beside_an_obstacle_stay_in_r3(
 
 
 def _assert_no_misses(monitor: Monitor, frames: dict, v: object, person: object, seed: int, cycle: int) -> None:  # type: ignore[type-arg]
-    """Every one of 6,000 points (half in the zone, half around the person) that the SPEC's
-    exact per-pixel free depth leaves possibly occupied lies in R2 of verdict ``v``, in the
-    padded robot's occlusion M (by its definition, or with the declared static band and
-    flying-pixel tolerances), or in a solid."""
+    """Every one of 6,000 points (half in the zone, half around the person) that the
+    exact per-pixel free depth ``min(D, B) - tau(D)`` leaves possibly occupied lies in R2 of
+    verdict ``v``, in the padded robot's occlusion M (by its definition, or with the
+    declared static band and flying-pixel tolerances), or in a solid."""
     points = zone_and_person_points(monitor.cell, person, np.random.default_rng(seed))
     occupied, out = outside_r2(monitor, frames, v, points)
     assert occupied > 100  # the oracle tests something

@@ -4,7 +4,8 @@ Each cycle renders the small cell with sensor noise, flying pixels and dropouts
 (:class:`polyhull.simulator.Simulator` defaults) and runs the monitor. The oracle samples
 points inside the person and checks, with the generalised winding number of the region
 mesh (robust where ray parity is not), that each point is inside R3 unless it is inside the
-robot occlusion M, where SPEC section 2 excuses it.
+robot occlusion M, which R2 leaves out by definition (R2 is C minus M, the solid obstacles
+and the robot).
 """
 
 from __future__ import annotations

@@ -121,9 +121,9 @@ def _classify(static: StaticCamera, D: np.ndarray, shadow: np.ndarray | None = N
     spread=st.floats(0.0, 1.0),
 )
 def test_engine_free_depth_never_above_exact(seed: int, kind: str, special: list[float], spread: float) -> None:
-    """The pixel classes' free depth is at most the SPEC's exact free depth, every pixel,
-    whatever the frame (noise, people, REP 117 special values); a static pixel frees the
-    static free depth, which is itself at most the exact one."""
+    """The pixel classes' free depth is at most the exact free depth (``regions.free_depth``),
+    every pixel, whatever the frame (noise, people, REP 117 special values); a static pixel
+    frees the static free depth, which is itself at most the exact one."""
     cam = make_camera(width=40, height=30, kind=kind)
     B = _reference(cam)
     static = StaticCamera.build(cam, B, 2)

@@ -1,4 +1,5 @@
-"""``Monitor.step`` never raises (SPEC section 4), whatever the controller passes it.
+"""``Monitor.step`` never raises (README, "Never raises, never silent"), whatever the
+controller passes it.
 
 Hypothesis draws ``q``, ``stamp``, ``q_stamp`` and frame mappings of every wrong kind
 (types, shapes, dtypes, NaN/inf, empty, huge, unknown cameras, values that are not

@@ -1,4 +1,5 @@
-"""Plausibility of the dynamic part: the rules of SPEC section 2 on this cycle's components.
+"""Plausibility of the dynamic part: the rules of :mod:`polyhull.plausibility` on this
+cycle's components.
 
 Components are groups of pieces whose bounding boxes, grown by ``TOUCH_EPS``, overlap
 (transitively; a superset of "touch or overlap": grouping more only makes a rule fire less,
@@ -810,7 +811,7 @@ def _confirm_static_touch(
     every piece's grown box is then wholly outside R3_static (the piece farther than
     ``eps`` from it) or wholly inside it (the piece is part of R3_static, which stays in
     the region). So the rules see the pieces outside R3_static as the separate component
-    they are, which the SPEC's too_small and flying rules judge; the grid's slack kept
+    they are, which the too_small and flying rules judge; the grid's slack kept
     dropout residue 0.16 to 0.2 m from a static blind region as if it touched it.
     """
     idx = np.nonzero(np.isin(labels, components) & grid_touch)[0]

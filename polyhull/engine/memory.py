@@ -1,4 +1,4 @@
-"""The robot shadow's memory (SPEC section 4): what the robot hides, near what was just seen.
+"""The robot shadow's memory: what the robot hides, near what was just seen.
 
 The paper subtracts the robot's occlusion M on the argument that nobody enters it unseen;
 a person who is seen and then steps behind the robot would vanish. The memory keeps the

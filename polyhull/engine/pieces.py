@@ -597,7 +597,7 @@ def columns_in_m(
     xy: ArrayF64, heights: ArrayF64, stack: CameraStack, static_free: ImageStack, ends: ImageStack, active: np.ndarray, k_of_n: int
 ) -> ArrayF64:
     """(C,) the lowest of ``heights`` (H,) [m] at which each vertical column ``xy`` (C, 2)
-    lies in the robot's occlusion M (SPEC section 2, ``M = F_static \\ F_static+robot``, k
+    lies in the robot's occlusion M (by definition ``M = F_static \\ F_static+robot``, k
     of n), +inf where it does at none. A point is in M when at least k cameras see it free
     in the empty cell (in front of ``static_free``, the static free depth ``f_s``) and
     fewer do with the robot (in front of ``ends``, the cycle's segment ends: the empty
@@ -695,7 +695,7 @@ def carve(
     of that offset is split down to ``size_min`` too.
 
     ``m_test``: for the shadow memory's pieces, which stand for part of ``C n M``
-    (:mod:`polyhull.engine.memory`; SPEC section 2: ``M = F_static \\ F_static+robot``,
+    (:mod:`polyhull.engine.memory`; by definition ``M = F_static \\ F_static+robot``,
     here with the padded robot): pyramids laid out as ``pyramids`` (the same cameras and
     shapes) of the cycle's segment ends, which are the free depth of the empty cell with
     the padded robot, and of the static free depth ``f_s``. A piece that at least k other

@@ -10,14 +10,14 @@ the depth where the padded robot's shadow starts, +inf where the robot does not 
   own exact free depth (at least ``f_s``, the band's least; about 1,000 pixels a camera,
   in the row chunks classified every cycle), so the other cameras' pieces are carved with
   what the pixel saw, not with the static model's wedge behind the edge;
-- otherwise the exact free depth of SPEC section 2 is computed, clamped to ``f_s``:
+- otherwise the exact free depth (``regions.free_depth``) is computed, clamped to ``f_s``:
   ``f(p) = min(f_exact(p), f_s(p))`` (never more than the static model allows);
 - the pixel's occluded **segment** runs from ``f(p)`` back to ``end(p) = min(f_s(p), S(p))``,
   or, for a surface seen in front of the band (a valid reading there in the pixel and its
   8 neighbours), to ``min(f_e(p), S(p))`` with ``f_e = B - tau(B)`` the empty cell's free
-  depth (the SPEC's M is defined from the empty cell: the space the empty cell shows the
-  pixel, behind what it sees now, is not M); beyond ``S`` the robot's shadow (its
-  occlusion M) takes over. A pixel is **explained by
+  depth (``M = F_static \\ F_static+robot`` is defined from the empty cell: the space the
+  empty cell shows the pixel, behind what it sees now, is not M); beyond ``S`` the robot's
+  shadow (its occlusion M) takes over. A pixel is **explained by
   the robot** when its segment is empty because ``f(p) >= S(p)``, and **unexplained** when
   the segment is not empty: a person, a new object, a dropout, a flying pixel;
 - at a static edge pixel whose wedge may meet another camera's robot shadow
@@ -217,7 +217,7 @@ class PixelBuffers:
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def _exact_free(d, b, a, tmin):  # pragma: no cover - compiled
-    """SPEC section 2's free depth ``min(D, B) - tau(D)`` of a usable reading ``d`` [m]
+    """The exact free depth ``min(D, B) - tau(D)`` of a usable reading ``d`` [m]
     (``b``: the reference depth, capped at the range)."""
     return min(d, b) - max(a * d * d, tmin)
 

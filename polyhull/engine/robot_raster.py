@@ -15,8 +15,9 @@ link frames, and every cycle their triangles are rasterised into each camera:
   before the surface, and frees up to ``tau`` before the reading, so its free depth is at
   least ``S`` and the pixel is explained by the robot.
 
-The padded robot's occlusion M (SPEC section 2, with this tolerance) is what these shadows
-hide from every camera: the monitor adds the padding to the protective separation distance.
+The padded robot's occlusion M (``M = F_static \\ F_static+robot``, with this tolerance) is
+what these shadows hide from every camera: the monitor adds the padding to the protective
+separation distance.
 """
 
 from __future__ import annotations

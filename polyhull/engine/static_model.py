@@ -130,7 +130,7 @@ class StaticCamera:
             may cross the wedge between the two, the pixel's segment runs to it
             (:mod:`polyhull.engine.edge_wedges`).
         free_empty: (H, W) the free depth of the empty cell's own reading, ``B - tau(B)``
-            [m] (SPEC section 2, from which M is defined), rounded down; at least
+            [m] (``M = F_static \\ F_static+robot`` is defined from it), rounded down; at least
             ``free_static``, ``near`` where the pixel frees nothing: where a segment ends.
     """
 
@@ -179,7 +179,7 @@ class StaticCamera:
             )
             # A depth camera's static edges take their 3 x 3 neighbourhood's band (flying
             # pixels); a colour camera has none, and a widened colour band would admit
-            # readings the SPEC calls changed, so it keeps its own band everywhere.
+            # changed readings (``D < B - tau(D)``), so it keeps its own band everywhere.
             edge = (jump > (U - T)) & (camera.kind != "color")
         T0, U0 = T, U
         T = np.where(edge, ndimage.minimum_filter(T, 3, mode="nearest"), T)

@@ -1,4 +1,4 @@
-"""Sensor placement quality and optimisation (paper section 4, SPEC section 5).
+"""Sensor placement quality and optimisation (paper section 4).
 
 Score where the cameras of a cell hang with the objectives of paper section 4, over people
 sampled on the walkable floor, and optimise them on the cell's mounting surfaces::

@@ -1,4 +1,4 @@
-"""Exact polyhedral evaluation of the placement objectives (SPEC section 5).
+"""Exact polyhedral evaluation of the placement objectives (paper section 4).
 
 The same labels as the voxel version (:mod:`polyhull.placement.labels`), but as solids
 built by the engine and measured by mesh booleans instead of counted voxels:

@@ -1,4 +1,4 @@
-"""Voxel labels of the placement simulation (paper section 4, SPEC sections 2 and 5).
+"""Voxel labels of the placement simulation (paper section 4).
 
 Every voxel of a regular grid over the work cell Z is tagged *target-free*, *changed* or
 *undetectable* for a set of cameras, the static scene and a set of targets (people):
@@ -9,7 +9,7 @@ the reference depth (floor and static obstacles) and ``D`` the depth with the ta
 present (noise free) at the nearest pixel, the camera says
 
 - *target-free* when ``z(p) < f`` with the free depth ``f = min(D, B) - tau(D)``
-  (a colour camera frees nothing along a changed pixel, SPEC section 2);
+  (a colour camera frees nothing along a changed pixel);
 - *changed* when the pixel is changed, ``D < B - tau(D)`` (``p`` lies behind it);
 - *undetectable* otherwise (``p`` lies behind the static background).
 
@@ -179,7 +179,7 @@ def project_grid(camera: Camera, grid: VoxelGrid, step: int = 1) -> GridProjecti
     """Project every voxel centre of ``grid`` into ``camera`` (nearest pixel).
 
     Visibility is decided at full resolution: a centre at pixel coordinates ``(u, v)`` is
-    in the image when ``-0.5 <= u < W - 0.5`` and ``-0.5 <= v < H - 0.5`` (SPEC section 1)
+    in the image when ``-0.5 <= u < W - 0.5`` and ``-0.5 <= v < H - 0.5`` (:mod:`polyhull.camera`)
     and in range when ``near <= z <= far``. Its pixel is the nearest rendered pixel centre
     (``round(u / step)``, clamped to the rendered image).
 
@@ -235,15 +235,15 @@ def project_grid(camera: Camera, grid: VoxelGrid, step: int = 1) -> GridProjecti
 def free_depth_image(
     camera: Camera, reference: ArrayF32 | ArrayF64, measured: ArrayF32 | ArrayF64
 ) -> tuple[ArrayF32, ArrayBool]:
-    """Per-pixel free depth and change mask of one camera (SPEC section 2).
+    """Per-pixel free depth and change mask of one camera.
 
     The free depth is the engine's (:func:`polyhull.regions.free_depth`), so that the
     evaluation uses the same definition of F as the reconstruction (paper section 4, item
     4): ``min(D, B) - tau(D)`` for a depth camera, and for a colour camera nothing along a
     changed pixel and ``B - tau(B)`` along an unchanged one, clipped to ``[near, far]``.
     A pixel is changed when ``D < B - tau(D)`` (the engine's test). ``D`` is what the
-    simulated sensor reports: a depth beyond ``far`` becomes +inf, "no return" (REP 117,
-    SPEC section 4), which frees the ray up to the rated range and changes nothing.
+    simulated sensor reports: a depth beyond ``far`` becomes +inf, "no return" (REP 117),
+    which frees the ray up to the rated range and changes nothing.
 
     Args:
         camera: The camera (its ``kind``, range and noise model).

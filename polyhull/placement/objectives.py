@@ -1,6 +1,6 @@
 """Quality of a sensor placement: the objectives f1 to f4 and their optimal values.
 
-Paper section 4 (SPEC section 5). With the voxel labels of
+Paper section 4. With the voxel labels of
 :mod:`polyhull.placement.labels`, every value is a volume in [m^3] (a voxel count times
 the voxel volume), weighted where the objective says so:
 
@@ -297,7 +297,7 @@ class PlacementProblem:
                 k-of-n when it is above 1.
             step: Pixel stride of the rendered depth images.
             extra_static: Further closed static occluders [m] (e.g. the robot at its default
-                configuration); the reference of SPEC section 2 holds only the obstacles.
+                configuration); the reference depth B (the empty cell) holds only the obstacles.
         """
         if params is None:
             k = cell.reconstruction.k_of_n
