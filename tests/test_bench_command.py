@@ -46,6 +46,25 @@ def test_bench_json_timings(bench_json: dict) -> None:  # type: ignore[type-arg]
     assert w["cameras"] == 4 and w["resolution"] == [320, 240] and w["cycles"] == 2 and w["warmup"] == 1
 
 
+def test_bench_json_cycle_records(bench_json: dict, tmp_path) -> None:  # type: ignore[type-arg, no-untyped-def]
+    """One record per timed cycle: its stages add up to no more than its time, the reported
+    distance is never above the person's true one, and --plot's drawing accepts them."""
+    from polyhull.benchplot import STAGES, plot_stages
+
+    cycles = bench_json["cycles"]
+    assert [c["cycle"] for c in cycles] == [0, 1]
+    stamps = [c["stamp_s"] for c in cycles]
+    assert stamps[1] > stamps[0]
+    for c in cycles:
+        assert set(STAGES) <= set(c["stages_ms"])
+        assert 0 < sum(c["stages_ms"].values()) <= c["total_ms"] * (1 + 1e-9)
+        assert c["pieces"] >= 0 and c["kept_pieces"] <= c["pieces"] and c["refined_pieces"] >= 0
+        assert c["unexplained_pixels"] >= 0 and 0.0 <= c["speed_scale"] <= 1.0
+        assert c["distance_m"] <= c["true_distance_m"] + 1e-6
+    out = plot_stages(cycles, tmp_path / "bench.png", title="bench")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_bench_repeat_pools_passes_of_the_same_walk(bench_json: dict) -> None:  # type: ignore[type-arg]
     """--repeat 2: both passes' cycles pooled, each pass's median reported, and the reset
     monitor's second pass gives the one-pass run's distances (the same frames, no history)."""
@@ -57,6 +76,9 @@ def test_bench_repeat_pools_passes_of_the_same_walk(bench_json: dict) -> None:  
     assert result["workload"]["repeat"] == 2
     assert len(result["cycle_ms"]["pass_medians"]) == 2 and all(ms > 0 for ms in result["cycle_ms"]["pass_medians"])
     assert all(n == 4 for n in result["stages_cycles"].values())  # 2 timed cycles a pass
+    # one record per timed cycle, its times the passes' median, its distances the last pass's
+    assert [c["cycle"] for c in result["cycles"]] == [0, 1]
+    assert [c["distance_m"] for c in result["cycles"]] == [c["distance_m"] for c in bench_json["cycles"]]
     assert result["person"]["distance_m"] == bench_json["person"]["distance_m"]
     assert isinstance(result["machine"]["cpu"], str) and result["machine"]["logical_cpus"] >= 1
 
@@ -169,6 +191,8 @@ def test_bench_camera_ring_runs(capsys: pytest.CaptureFixture[str]) -> None:
         (("--spin",), "--spin"),
         (("--repeat", "0"), "--repeat"),
         (("--repeat", "51"), "--repeat"),
+        (("--plot", "bench.jpg"), "--plot"),
+        (("--plot", "no-such-directory/bench.png"), "--plot"),
     ],
 )
 def test_bench_rejects_bad_values(argv: tuple[str, ...], flag: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -5,7 +5,9 @@ Five parts, on one monitor (the static model is built once):
 1. the reference workload: the cell, the robot moving, one walking person, default sensor
    effects; frames rendered before timing, ``warmup`` untimed cycles, then ``cycles`` timed
    ones: the cycle's median and p99 [ms] and every stage's median [ms]; and the new
-   monitor's first two cycles [ms] (what a controller sees after starting it);
+   monitor's first two cycles [ms] (what a controller sees after starting it); each timed
+   cycle's record (``cycles``: its time by stage, the pieces, the reported and true
+   distance), which ``--plot OUT.png`` draws (:mod:`polyhull.benchplot`);
 2. the person: over the walk, the true distance from the person's mesh to the robot's
    moving links against the reported distance (reported must never exceed true), and both
    against the distance of the exact depth hull's part that holds the person
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib.util
 import json
 import math
 import os
@@ -50,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import PolyhullError
+from ..errors import MissingExtraError, PolyhullError
 from ..oracles import (
     GAP_GRID,
     ExactHullGap,
@@ -151,6 +154,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
         action="store_true",
         help="with --peers: OctoMap casts every point's own ray (as MoveIt does) instead of one per voxel "
         "(discretize, the faster)",
+    )
+    p.add_argument(
+        "--plot", type=Path, default=None, metavar="OUT.png",
+        help="also draw every timed cycle: its time split by stage against the targets, the pieces "
+        "carved and the person's distance (needs the 'placement' extra)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object and nothing else")
     p.set_defaults(func=_run)
@@ -270,6 +278,7 @@ def run_bench(
     stages: dict[str, list[float]] = {}
     pass_medians = []
     first: list[float] = []
+    pass_timings: list[list[dict[str, float]]] = []  # every pass's timed cycles' timings
     for k in range(max(int(repeat), 1)):
         if k:
             monitor.reset()  # the same walk again, from a monitor without history
@@ -280,13 +289,15 @@ def run_bench(
         if k == 0:
             first = first_k  # a new monitor's (a reset one keeps its warm caches)
         pass_medians.append(float(np.median(times["total"])))
+        pass_timings.append([dict(v.timings) for v in verdicts[warmup:]])
         for stage, ms in times.items():
             stages.setdefault(stage, []).extend(ms)
     total = np.asarray(stages.pop("total"))
 
     # 2. the person's distances; 3. tightness and misses on the last person cycle (before
     # the monitor moves on)
-    person = _person_figures(monitor, sim, inputs, verdicts, seed, progress)
+    person, trues = _person_figures(monitor, sim, inputs, verdicts, seed, progress)
+    per_cycle = _per_cycle(inputs[warmup:], verdicts[warmup:], pass_timings, trues[warmup:])
     tightness = None
     if tightness_samples > 0 and verdicts[-1]._geometry is not None:
         tightness = tightness_and_misses(monitor, inputs[-1][0], verdicts[-1], tightness_samples, seed)
@@ -324,6 +335,7 @@ def run_bench(
         "first_cycles_ms": first,
         "stages_ms_median": {s: float(np.median(v)) for s, v in stages.items()},
         "stages_cycles": {s: len(v) for s, v in stages.items()},
+        "cycles": per_cycle,
         "person": person,
         "tightness": tightness,
         "empty_cell": empty,
@@ -433,11 +445,41 @@ def _time_walk(
     return stages, first, verdicts
 
 
+def _per_cycle(
+    inputs: list[tuple[Any, np.ndarray, float, Any]],
+    verdicts: list[Any],
+    pass_timings: list[list[dict[str, float]]],
+    trues: list[float],
+) -> list[dict[str, Any]]:
+    """One record per timed cycle: its time and every stage's [ms] (the median over the
+    passes; a stage that did not run counts 0), the last pass's piece counts and distance,
+    and the person's true distance."""
+    out = []
+    for i, ((_, _, t, _), v, true) in enumerate(zip(inputs, verdicts, trues, strict=True)):
+        runs = [p[i] for p in pass_timings]
+        names = [s for s in runs[0] if s != "total"]
+        out.append({
+            "cycle": i,
+            "stamp_s": float(t),
+            "total_ms": float(np.median([r["total"] for r in runs])),
+            "stages_ms": {s: float(np.median([r.get(s, 0.0) for r in runs])) for s in names},
+            "unexplained_pixels": int(v.counts.get("unexplained_pixels", 0)),
+            "pieces": int(v.counts.get("pieces", 0)),
+            "kept_pieces": int(v.counts.get("kept_pieces", 0)),
+            "refined_pieces": int(v.counts.get("refined_pieces", 0)),
+            "distance_m": float(v.min_distance),
+            "true_distance_m": float(true),
+            "speed_scale": float(v.speed_scale),
+        })
+    return out
+
+
 def _person_figures(
     monitor: Any, sim: Any, inputs: list[tuple[Any, np.ndarray, float, Any]], verdicts: list[Any], seed: int, progress: bool
-) -> dict[str, Any]:
+) -> tuple[dict[str, Any], list[float]]:
     """The true distance (person mesh to the moving links) against the reported one, and
-    the exact hull's own gap: its part that holds the person, against the links."""
+    the exact hull's own gap: its part that holds the person, against the links; and the
+    true distance of every cycle [m]."""
     from ..cell import mesh_to_manifold
 
     robot, distance_model = monitor.robot, monitor._distance_model
@@ -496,7 +538,7 @@ def _person_figures(
         "distance_m": _stats([v.min_distance for v in verdicts]),
         "speed_scale": _stats([v.speed_scale for v in verdicts]),
         "faults": sorted({f for v in verdicts for f in v.faults}),
-    }
+    }, trues
 
 
 def _empty_cell(monitor: Any, sim: Any, cycles: int, timed: int, warmup: int, seed: int, progress: bool) -> dict[str, Any]:
@@ -605,6 +647,13 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
         raise PolyhullError("--peers-resolution is the voxel size of --peers' OctoMap: give --peers too")
     if args.peers_full_rays and not args.peers:
         raise PolyhullError("--peers-full-rays sets how --peers' OctoMap casts rays: give --peers too")
+    if args.plot is not None:
+        if args.plot.suffix.lower() != ".png":
+            raise PolyhullError(f"--plot {args.plot}: the bench plot is a PNG; give a path ending in .png")
+        if not args.plot.parent.is_dir():
+            raise PolyhullError(f"--plot {args.plot}: the directory {args.plot.parent} does not exist")
+        if importlib.util.find_spec("matplotlib") is None:
+            raise MissingExtraError("the bench plot (--plot)", "placement")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 
@@ -628,8 +677,17 @@ def _run(args: argparse.Namespace) -> int:
             args.cameras, resolution, args.seed, progress=True, peers=args.peers, peers_options=peers_options,
             pace=args.pace, spin=args.spin, repeat=args.repeat,
         )
+    if args.plot is not None:
+        from ..benchplot import plot_stages
+
+        w, c = result["workload"], result["cycle_ms"]
+        title = (f"polyhull bench: {w['cameras']} cameras {w['resolution'][0]}x{w['resolution'][1]}, "
+                 f"cycle median {c['median']:.1f} ms, p99 {c['p99']:.1f} ms")
+        plot_stages(result["cycles"], args.plot, title=title)
     if args.json:
         print(json.dumps(_finite(result), indent=2))
+        if args.plot is not None:
+            print(f"wrote {args.plot}", file=sys.stderr)
         return 0
     w, c = result["workload"], result["cycle_ms"]
     paced = "back to back" if w["pace_hz"] is None else f"paced at {w['pace_hz']:g} Hz ({w['pace_wait']})"
@@ -695,4 +753,6 @@ def _run(args: argparse.Namespace) -> int:
         from ..peers import format_table
 
         print(format_table(result["peers"]))
+    if args.plot is not None:
+        print(f"wrote {args.plot}: each timed cycle's time by stage, the pieces carved and the person's distance")
     return 0
