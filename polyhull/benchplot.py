@@ -3,8 +3,8 @@
 ``polyhull bench --plot OUT.png`` draws the ``cycles`` of its result (one record per timed
 cycle, see :func:`polyhull.commands.bench.run_bench`) in two panels over the walk:
 
-- the cycle time [ms] as stacked bars, one colour per engine stage (what the stages do is
-  in the README's "The engine" section), with the targets' lines: a 10 ms median, and
+- the cycle time [ms] as stacked bars, one colour per engine stage (the two image stages
+  in one; what the stages do is in the README's "The engine" section), with the targets' lines: a 10 ms median, and
   the fallback of one frame at 30 Hz, 33 ms;
 - the dynamic pieces carved (bars, left axis) and the person's true and reported distance to
   the robot [m] (lines, right axis): the cost follows how much of the images the person
@@ -25,8 +25,19 @@ from .errors import MissingExtraError, PolyhullError
 __all__ = ["STAGES", "TARGET_MS", "FALLBACK_MS", "plot_stages", "stages_figure"]
 
 STAGES = ("robot_raster", "pixels", "pieces", "memory", "plausibility", "distance")
-"""The stages drawn one by one, in the cycle's order; the rest of a cycle (frames,
-kinematics, speed and what lies between the stages) is drawn as "other"."""
+"""The stages drawn, in the cycle's order; the rest of a cycle (frames, kinematics, speed
+and what lies between the stages) is drawn as "other"."""
+
+_BARS = (
+    ("images (robot raster, pixel classes)", ("robot_raster", "pixels")),
+    ("pieces", ("pieces",)),
+    ("shadow memory", ("memory",)),
+    ("plausibility", ("plausibility",)),
+    ("distance", ("distance",)),
+)
+"""One bar segment per entry, of these stages' sum. The two image stages share one: each
+camera's raster and pixels run as one task on two threads, so the raster stage's time
+(until the last raster is done) holds the first cameras' pixel work too."""
 
 TARGET_MS = 10.0
 """The cycle median the engine aims at [ms]."""
@@ -58,17 +69,19 @@ def stages_figure(cycles: Sequence[Mapping[str, Any]], *, title: str | None = No
     """
     if len(cycles) == 0:
         raise PolyhullError("no bench cycle to plot")
-    totals, parts = [], {s: [] for s in (*STAGES, "other")}  # type: ignore[var-annotated]
+    names = [name for name, _ in _BARS] + ["other"]
+    totals: list[float] = []
+    parts: dict[str, list[float]] = {name: [] for name in names}
     for i, c in enumerate(cycles):
         stages = c.get("stages_ms")
         total = _number(c, "total_ms", i)
         if not isinstance(stages, Mapping) or math.isnan(total):
             raise PolyhullError(f"bench cycle record {i}: needs 'total_ms' and 'stages_ms' (from polyhull bench --json)")
         drawn = 0.0
-        for s in STAGES:
-            ms = stages.get(s) or 0.0
-            parts[s].append(float(ms))
-            drawn += float(ms)
+        for name, members in _BARS:
+            ms = sum(float(stages.get(s) or 0.0) for s in members)
+            parts[name].append(ms)
+            drawn += ms
         parts["other"].append(max(total - drawn, 0.0))
         totals.append(total)
     pieces = [_number(c, "pieces", i) for i, c in enumerate(cycles)]
@@ -84,10 +97,10 @@ def stages_figure(cycles: Sequence[Mapping[str, Any]], *, title: str | None = No
     fig = Figure(figsize=(9.0, 6.0), dpi=100)
     ax_t, ax_p = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [1.6, 1.0]})
     bottom = [0.0] * len(x)
-    colours = {s: f"C{k}" for k, s in enumerate(STAGES)} | {"other": "0.75"}
-    for s in (*STAGES, "other"):
-        ax_t.bar(x, parts[s], bottom=bottom, color=colours[s], width=0.8, label=s.replace("_", " "))
-        bottom = [b + h for b, h in zip(bottom, parts[s], strict=True)]
+    for k, name in enumerate(names):
+        colour = "0.75" if name == "other" else f"C{k}"
+        ax_t.bar(x, parts[name], bottom=bottom, color=colour, width=0.8, label=name)
+        bottom = [b + h for b, h in zip(bottom, parts[name], strict=True)]
     ax_t.axhline(TARGET_MS, color="k", linestyle="--", linewidth=1.0)
     ax_t.axhline(FALLBACK_MS, color="k", linestyle=":", linewidth=1.0)
     right = len(x) - 0.45
@@ -96,7 +109,7 @@ def stages_figure(cycles: Sequence[Mapping[str, Any]], *, title: str | None = No
     ax_t.text(right, FALLBACK_MS, f"one frame at 30 Hz, {FALLBACK_MS:g} ms", va="bottom", ha="right", fontsize=8, bbox=box)
     ax_t.set_ylabel("cycle time [ms]")
     ax_t.set_ylim(0.0, max(max(totals), FALLBACK_MS) * 1.08)
-    ax_t.legend(fontsize=8, loc="upper left", ncol=4)
+    ax_t.legend(fontsize=8, loc="upper left", ncol=3)
 
     bars = ax_p.bar(x, [0.0 if math.isnan(p) else p for p in pieces], color="0.6", width=0.8, label="pieces carved")
     ax_p.set_ylabel("dynamic pieces carved")

@@ -37,9 +37,9 @@ def test_bars_add_up_to_each_cycles_time() -> None:
         tops[x] = max(tops.get(x, 0.0), bar.get_y() + bar.get_height())
     expected = [r["total_ms"] for r in records[:3]] + [float(len(STAGES))]
     assert [tops[float(i)] for i in range(4)] == pytest.approx(expected)
-    # one colour (legend entry) per stage drawn, and the rest of the cycle
+    # one colour (legend entry) per stage drawn (the two image stages in one), and the rest
     labels = [t.get_text() for t in ax.get_legend().get_texts()]
-    assert labels == [s.replace("_", " ") for s in STAGES] + ["other"]
+    assert labels[0].startswith("images") and labels[1:] == ["pieces", "shadow memory", "plausibility", "distance", "other"]
 
 
 def test_plot_writes_a_png(tmp_path: Path) -> None:
