@@ -701,6 +701,8 @@ def _run(args: argparse.Namespace) -> int:
         ran, timed = result["stages_cycles"][stage], w["cycles"] * w["repeat"]
         note = "" if ran == timed else f"   (ran in {ran} of {timed} cycles)"
         print(f"{stage:<16}{ms:12.1f}{note}")
+    print("  (robot_raster lasts until the last camera's raster is done: each camera's raster and pixel "
+          "classes are one task on two threads, so it holds the first cameras' pixel classes too)")
     print(f"{'cycle median':<16}{c['median']:12.1f}")
     print(f"{'cycle p99':<16}{c['p99']:12.1f}")
     if w["repeat"] > 1:
