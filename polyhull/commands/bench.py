@@ -457,7 +457,7 @@ def _per_cycle(
     out = []
     for i, ((_, _, t, _), v, true) in enumerate(zip(inputs, verdicts, trues, strict=True)):
         runs = [p[i] for p in pass_timings]
-        names = [s for s in runs[0] if s != "total"]
+        names = [s for s in dict.fromkeys(k for r in runs for k in r) if s != "total"]  # every pass's, in order
         out.append({
             "cycle": i,
             "stamp_s": float(t),
