@@ -243,3 +243,21 @@ def test_paced_cycles_start_at_their_ticks(monkeypatch: pytest.MonkeyPatch) -> N
     back_to_back = _Monitor()
     _time_walk(back_to_back, inputs, 1, 0, None, False)  # type: ignore[arg-type]
     assert len(back_to_back.started) == 5
+
+
+def test_plot_without_matplotlib_is_refused_before_any_work(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path
+) -> None:  # type: ignore[no-untyped-def]
+    """--plot without the 'placement' extra: one line naming it, exit 2, nothing run."""
+    import importlib.util
+
+    import polyhull.commands.bench as bench
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a))
+    monkeypatch.setattr(bench, "run_bench", lambda *a, **k: pytest.fail("the bench ran"))
+    code = _run("--plot", str(tmp_path / "b.png"))
+    captured = capsys.readouterr()
+    assert code == 2 and captured.out == ""
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and "--plot" in lines[0] and "placement" in lines[0], captured.err

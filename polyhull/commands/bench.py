@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import json
 import math
 import os
@@ -53,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import MissingExtraError, PolyhullError
+from ..errors import PolyhullError
 from ..oracles import (
     GAP_GRID,
     ExactHullGap,
@@ -61,7 +60,7 @@ from ..oracles import (
     exact_hull,
     tightness_and_misses,
 )
-from . import counted
+from . import counted, require_extra
 
 __all__ = ["register", "run_bench", "ring_cameras", "rescale_camera", "parse_resolution"]
 
@@ -652,8 +651,7 @@ def _check(args: argparse.Namespace) -> tuple[int, int] | None:
             raise PolyhullError(f"--plot {args.plot}: the bench plot is a PNG; give a path ending in .png")
         if not args.plot.parent.is_dir():
             raise PolyhullError(f"--plot {args.plot}: the directory {args.plot.parent} does not exist")
-        if importlib.util.find_spec("matplotlib") is None:
-            raise MissingExtraError("the bench plot (--plot)", "placement")
+        require_extra("matplotlib", "the bench plot (--plot)", "placement")
     return None if args.resolution is None else parse_resolution(args.resolution)
 
 

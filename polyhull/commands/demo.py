@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import sys
@@ -14,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MissingExtraError, PolyhullError
-from . import counted
+from . import counted, require_extra
 
 __all__ = ["register", "robot_motion", "person_path", "TrueDistance"]
 
@@ -148,11 +147,6 @@ def behaviour(records: list[dict[str, Any]]) -> str:
     return ", ".join(f"{n} {a:.1f}-{b:.1f} s" if b > a else f"{n} at {a:.1f} s" for n, a, b in phases) or "no cycle"
 
 
-def _check_extra(module: str, feature: str, extra: str, flag: str) -> None:
-    if importlib.util.find_spec(module) is None:
-        raise MissingExtraError(f"{feature} (or pass {flag})", extra)
-
-
 def _run(args: argparse.Namespace) -> int:
     from ..cellfile import default_cell_path, load_cell
     from ..monitor import Monitor
@@ -171,7 +165,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.no_plot:
         if args.plot.suffix.lower() != ".png":
             raise PolyhullError(f"--plot {args.plot}: the timeline plot is a PNG; give a path ending in .png")
-        _check_extra("matplotlib", "the demo's timeline plot", "placement", "--no-plot")
+        require_extra("matplotlib", "the demo's timeline plot (or pass --no-plot)", "placement")
     cell_path = args.cell or default_cell_path()
     cell = load_cell(cell_path)
     if cell.robot is None:
