@@ -199,6 +199,42 @@ def test_any_near_upright_is_a_cylinder(seed: int, n: int, m: int, margin: float
     assert any_near_upright(lo + np.array([0.0, 0.0, 0.39]), hi + np.array([0.0, 0.0, 0.39]), lo, hi, 0.3)[0]
 
 
+@settings(max_examples=20, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    n=st.integers(1, 300),
+    m=st.integers(1, 3000),
+    layout=st.sampled_from(["flat", "columns", "scattered"]),
+    reach=st.floats(0.0, 0.3),
+)
+def test_any_near_upright_on_a_fine_grid_is_brute_force(seed: int, n: int, m: int, layout: str, reach: float) -> None:
+    """Thousands of small boxes over 4 m: the grid's cubes are as small as the boxes until
+    ``GRID_CELLS`` of them would not cover the queries' reach, then coarser. The boxes lie
+    flat at one height (a sheet: one layer of cubes), stand in columns (a body over the
+    floor's sheet, the case the cubes are for) or are scattered; the queries reach beyond
+    them (the outer cells reach to infinity). Brute force, with the ball's and the
+    cylinder's reach."""
+    rng = np.random.default_rng(seed)
+    blo = rng.uniform(0.0, 4.0, size=(m, 3))
+    size = rng.uniform(0.005, 0.05, size=(m, 3))
+    if layout == "flat":
+        blo[:, 2] = 0.1
+        size[:, 2] = 0.0
+    elif layout == "columns":
+        blo[:, :2] = np.round(blo[:, :2] * 2.0) / 2.0 + rng.uniform(0.0, 0.02, size=(m, 2))
+    bhi = blo + size
+    qlo = rng.uniform(-0.5, 4.5, size=(n, 3))
+    qhi = qlo + rng.uniform(0.0, 0.08, size=(n, 3))
+    gaps = np.maximum(np.maximum(blo[None] - qhi[:, None], qlo[:, None] - bhi[None]), 0.0)
+    ball = np.linalg.norm(gaps, axis=2)
+    horizontal = np.linalg.norm(gaps[..., :2], axis=2)
+    doubt = (np.abs(ball - reach) < 1e-9).any(axis=1)
+    assert np.array_equal(any_overlap(qlo, qhi, blo, bhi, reach=reach)[~doubt], (ball <= reach).any(axis=1)[~doubt])
+    doubt = ((np.abs(horizontal - reach) < 1e-9) | (np.abs(gaps[..., 2] - reach) < 1e-9)).any(axis=1)
+    expected = ((horizontal <= reach) & (gaps[..., 2] <= reach)).any(axis=1)
+    assert np.array_equal(any_near_upright(qlo, qhi, blo, bhi, reach)[~doubt], expected[~doubt])
+
+
 def _fcl_meets(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """(N,) python-fcl: whether each solid box [lo, hi] collides with the triangles."""
     model = fcl.BVHModel()

@@ -3,8 +3,8 @@
 The dynamic rules ask two questions of this cycle's pieces through their bounding boxes:
 which boxes overlap (the components, :func:`overlap_groups`, by sweep and prune) and
 which boxes meet any of another set (a margin around pieces, the previous cycle's
-components, :func:`any_overlap`, the other set binned in a uniform grid on the x, y
-plane: a query tests the boxes of the cells its reach meets). Bounding boxes contain
+components, :func:`any_overlap`, the other set binned in a uniform grid of cubes: a
+query tests the boxes of the cells its reach meets). Bounding boxes contain
 their pieces, so both answers are supersets of the pieces' own: more grouping and more
 meeting, which only keeps more. The cost follows the number of boxes and of overlapping pairs, not the size of
 the cell.
@@ -225,64 +225,74 @@ def _bin(x, x0, cell, n):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _bin_boxes(blo, bhi, x0, y0, cell, nx, ny):  # pragma: no cover - compiled
-    """The boxes binned in a grid of ``nx`` x ``ny`` square cells of side ``cell`` on the x,
-    y plane from (``x0``, ``y0``) (the outer cells extend to infinity): (start
-    (nx ny + 1,), items) such that ``items[start[c]:start[c + 1]]`` are the boxes whose x,
-    y extent meets cell ``c = iy nx + ix``."""
+def _bin_boxes(blo, bhi, o, cell, n):  # pragma: no cover - compiled
+    """The boxes binned in a grid of ``n`` (3,) cubic cells of side ``cell`` from ``o``
+    (3,) (the outer cells extend to infinity): (start (n0 n1 n2 + 1,), items) such that
+    ``items[start[c]:start[c + 1]]`` are the boxes whose extent meets cell
+    ``c = (iz n1 + iy) n0 + ix``."""
     m = blo.shape[0]
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    nc = n[0] * n[1] * n[2]
+    start = np.zeros(nc + 1, dtype=np.int64)
     for j in range(m):
-        ix0, ix1 = _bin(blo[j, 0], x0, cell, nx), _bin(bhi[j, 0], x0, cell, nx)
-        iy0, iy1 = _bin(blo[j, 1], y0, cell, ny), _bin(bhi[j, 1], y0, cell, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                start[iy * nx + ix + 1] += 1
-    for c in range(nx * ny):
+        ix0, ix1 = _bin(blo[j, 0], o[0], cell, n[0]), _bin(bhi[j, 0], o[0], cell, n[0])
+        iy0, iy1 = _bin(blo[j, 1], o[1], cell, n[1]), _bin(bhi[j, 1], o[1], cell, n[1])
+        iz0, iz1 = _bin(blo[j, 2], o[2], cell, n[2]), _bin(bhi[j, 2], o[2], cell, n[2])
+        for iz in range(iz0, iz1 + 1):
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    start[(iz * n[1] + iy) * n[0] + ix + 1] += 1
+    for c in range(nc):
         start[c + 1] += start[c]
-    items = np.empty(start[nx * ny], dtype=np.int64)
+    items = np.empty(start[nc], dtype=np.int64)
     fill = start[:-1].copy()
     for j in range(m):
-        ix0, ix1 = _bin(blo[j, 0], x0, cell, nx), _bin(bhi[j, 0], x0, cell, nx)
-        iy0, iy1 = _bin(blo[j, 1], y0, cell, ny), _bin(bhi[j, 1], y0, cell, ny)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                c = iy * nx + ix
-                items[fill[c]] = j
-                fill[c] += 1
+        ix0, ix1 = _bin(blo[j, 0], o[0], cell, n[0]), _bin(bhi[j, 0], o[0], cell, n[0])
+        iy0, iy1 = _bin(blo[j, 1], o[1], cell, n[1]), _bin(bhi[j, 1], o[1], cell, n[1])
+        iz0, iz1 = _bin(blo[j, 2], o[2], cell, n[2]), _bin(bhi[j, 2], o[2], cell, n[2])
+        for iz in range(iz0, iz1 + 1):
+            for iy in range(iy0, iy1 + 1):
+                for ix in range(ix0, ix1 + 1):
+                    c = (iz * n[1] + iy) * n[0] + ix
+                    items[fill[c]] = j
+                    fill[c] += 1
     return start, items
 
 
 @nb.njit(cache=True, nogil=True)
-def _any(qlo, qhi, blo, bhi, start, items, x0, y0, cell, nx, ny, reach, dims, seen, out):  # pragma: no cover - compiled
+def _any(qlo, qhi, blo, bhi, start, items, o, cell, n, reach, dims, seen, out):  # pragma: no cover - compiled
     """For each query box: does a box (binned by :func:`_bin_boxes`) meet it? The
     candidates are the boxes of the cells the query's box grown by ``reach`` meets (a box
     that meets the grown query meets one of them), each tested once (``seen`` (M,), -1 at
     first, holds the last query that tested a box). A candidate meets the query when it
     overlaps the query's box grown by ``reach`` on every side and their Euclidean gap
     over the first ``dims`` axes (3, or 2: in x, y only) is at most ``reach``. The box the
-    last hit found is tested first: consecutive queries (a column's slabs, a tile's
-    neighbours) mostly meet the same box, which the grid's cells may list after many that
-    do not meet them along z (the cells are columns in x, y)."""
+    last hit found is tested first (consecutive queries, a column's slabs or a tile's
+    neighbours, mostly meet the same box), then the boxes of the query's centre cell,
+    then the other cells'. A query that meets nothing visits only the cells within its
+    reach, along z too: the cells are cubes, not columns, so a query in the floor's
+    sheet does not scan the body standing above it."""
     r2 = reach * reach
     last = -1
+    n0, n1 = n[0], n[1]
     for i in range(qlo.shape[0]):
         l0, l1, l2 = qlo[i, 0] - reach, qlo[i, 1] - reach, qlo[i, 2] - reach
         h0, h1, h2 = qhi[i, 0] + reach, qhi[i, 1] + reach, qhi[i, 2] + reach
-        ix0, ix1 = _bin(l0, x0, cell, nx), _bin(h0, x0, cell, nx)
-        iy0, iy1 = _bin(l1, y0, cell, ny), _bin(h1, y0, cell, ny)
-        # the cell of the query's centre first (hits come early there), then the rest
-        cx = _bin(0.5 * (qlo[i, 0] + qhi[i, 0]), x0, cell, nx)
-        cy = _bin(0.5 * (qlo[i, 1] + qhi[i, 1]), y0, cell, ny)
         if last >= 0 and _meets(qlo, qhi, blo, bhi, i, last, l0, l1, l2, h0, h1, h2, reach, r2, dims):
             out[i] = True
             continue
+        ix0, ix1 = _bin(l0, o[0], cell, n0), _bin(h0, o[0], cell, n0)
+        iy0, iy1 = _bin(l1, o[1], cell, n1), _bin(h1, o[1], cell, n1)
+        iz0, iz1 = _bin(l2, o[2], cell, n[2]), _bin(h2, o[2], cell, n[2])
+        cx = _bin(0.5 * (qlo[i, 0] + qhi[i, 0]), o[0], cell, n0)
+        cy = _bin(0.5 * (qlo[i, 1] + qhi[i, 1]), o[1], cell, n1)
+        cz = _bin(0.5 * (qlo[i, 2] + qhi[i, 2]), o[2], cell, n[2])
+        sx, sy = ix1 - ix0 + 1, iy1 - iy0 + 1
         hit = False
-        for k in range(-1, (iy1 - iy0 + 1) * (ix1 - ix0 + 1)):
+        for k in range(-1, sx * sy * (iz1 - iz0 + 1)):
             if k < 0:
-                c = cy * nx + cx
+                c = (cz * n1 + cy) * n0 + cx
             else:
-                c = (iy0 + k // (ix1 - ix0 + 1)) * nx + ix0 + k % (ix1 - ix0 + 1)
+                c = ((iz0 + k // (sx * sy)) * n1 + iy0 + (k // sx) % sy) * n0 + ix0 + k % sx
             for a in range(start[c], start[c + 1]):
                 j = items[a]
                 if seen[j] == i:
@@ -357,24 +367,26 @@ def any_overlap(
             if len(blo) == 0:
                 out[~finite] = True
                 return out
-    # the boxes binned in a grid on the x, y plane over the queries' reach (cells at
-    # least the boxes' median width and half the reach; the boxes beyond the grid fall
-    # into its outer cells, which reach to infinity)
-    x0, y0 = float(max(glo[0], blo[:, 0].min())), float(max(glo[1], blo[:, 1].min()))
-    side = np.maximum(np.minimum(ghi[:2], bhi[:, :2].max(axis=0)) - (x0, y0), 0.0)
-    ext = float(np.median(bhi[:, :2] - blo[:, :2]))
-    cell = max(ext, float(reach) / 2.0, float(np.sqrt(side[0] * side[1] / GRID_CELLS)), 1e-3)
-    nx, ny = (int(x) for x in np.clip(np.ceil(side / cell), 1, GRID_CELLS))
-    start, items = _bin_boxes(blo, bhi, x0, y0, cell, nx, ny)
+    # the boxes binned in a grid of cubes over the queries' reach (cells at least the
+    # boxes' median extent and half the reach, at most GRID_CELLS of them; the boxes beyond
+    # the grid fall into its outer cells, which reach to infinity)
+    o = np.maximum(glo, blo.min(axis=0))
+    side = np.maximum(np.minimum(ghi, bhi.max(axis=0)) - o, 0.0)
+    cell = max(float(np.median(bhi - blo)), float(reach) / 2.0, 1e-3)
+    n = np.clip(np.ceil(side / cell), 1, GRID_CELLS).astype(np.int64)
+    while int(np.prod(n)) > GRID_CELLS:
+        cell *= 1.25
+        n = np.clip(np.ceil(side / cell), 1, GRID_CELLS).astype(np.int64)
+    start, items = _bin_boxes(blo, bhi, o, cell, n)
     if not finite.all():  # (answered below)
         qlo, qhi = np.where(finite[:, None], qlo, 0.0), np.where(finite[:, None], qhi, 0.0)
 
     def run(sl: slice) -> np.ndarray:
         ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
-        o = np.zeros(len(ql), dtype=bool)
+        out_ = np.zeros(len(ql), dtype=bool)
         seen = np.full(len(blo), -1, dtype=np.int64)
-        _any(ql, qh, blo, bhi, start, items, x0, y0, cell, nx, ny, float(reach), 2 if upright else 3, seen, o)
-        return o
+        _any(ql, qh, blo, bhi, start, items, o, cell, n, float(reach), 2 if upright else 3, seen, out_)
+        return out_
 
     if pool is None or len(qlo) < ANY_PARALLEL_MIN:
         out = run(slice(None))
@@ -402,8 +414,8 @@ ANY_PARALLEL_MIN = 512
 """Fewest queries :func:`any_overlap` splits over two threads."""
 
 GRID_CELLS = 16384
-"""Most cells of :func:`any_overlap`'s grid (its cells are at least the boxes' median
-width and half the reach)."""
+"""Most cells of :func:`any_overlap`'s grid (its cubes are at least the boxes' median
+extent and half the reach, larger when that many would not cover the queries' reach)."""
 
 BOUNDS_FILTER_MIN = 32
 """Fewest boxes :func:`any_overlap` first filters by the queries' bounds."""
