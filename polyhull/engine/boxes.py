@@ -328,6 +328,58 @@ def _gap2(qlo, qhi, blo, bhi, i, j, dims):  # pragma: no cover - compiled
     return g2
 
 
+@nb.njit(cache=True, nogil=True)
+def _query_bounds(qlo, qhi, reach, finite, glo, ghi):  # pragma: no cover - compiled
+    """Mark the queries whose coordinates are all finite (``finite``); their bounds grown
+    by ``reach`` into ``glo``, ``ghi`` (3,). False when no query is finite."""
+    for a in range(3):
+        glo[a] = np.inf
+        ghi[a] = -np.inf
+    anyf = False
+    for i in range(qlo.shape[0]):
+        ok = True
+        for a in range(3):
+            ok &= np.isfinite(qlo[i, a]) & np.isfinite(qhi[i, a])
+        finite[i] = ok
+        if ok:
+            anyf = True
+            for a in range(3):
+                glo[a] = min(glo[a], qlo[i, a] - reach)
+                ghi[a] = max(ghi[a], qhi[i, a] + reach)
+    return anyf
+
+
+@nb.njit(cache=True, nogil=True)
+def _near_boxes(blo, bhi, glo, ghi):  # pragma: no cover - compiled
+    """The boxes that meet [glo, ghi]: (True, their indices, the grid's origin (3,) and
+    extent (3,) over them and [glo, ghi], their median extent over the three axes), or
+    False first when some box has a non-finite coordinate."""
+    m = blo.shape[0]
+    idx = np.empty(m, dtype=np.int64)
+    k = 0
+    bmin = np.full(3, np.inf)
+    bmax = np.full(3, -np.inf)
+    for j in range(m):
+        meet = True
+        for a in range(3):
+            if not (np.isfinite(blo[j, a]) and np.isfinite(bhi[j, a])):
+                return False, idx[:0], bmin, bmax, 0.0
+            meet &= (blo[j, a] <= ghi[a]) & (bhi[j, a] >= glo[a])
+        if meet:
+            idx[k] = j
+            k += 1
+            for a in range(3):
+                bmin[a] = min(bmin[a], blo[j, a])
+                bmax[a] = max(bmax[a], bhi[j, a])
+    ext = np.empty(3 * k)
+    for t in range(k):
+        for a in range(3):
+            ext[3 * t + a] = bhi[idx[t], a] - blo[idx[t], a]
+    o = np.maximum(glo, bmin)
+    side = np.maximum(np.minimum(ghi, bmax) - o, 0.0)
+    return True, idx[:k], o, side, np.median(ext) if k else 0.0
+
+
 def any_overlap(
     qlo: ArrayF64,
     qhi: ArrayF64,
@@ -352,27 +404,27 @@ def any_overlap(
     qlo = np.ascontiguousarray(qlo, dtype=np.float64)
     qhi = np.ascontiguousarray(qhi, dtype=np.float64)
     # nothing is known of a box with a non-finite coordinate: it may meet anything
-    finite = np.asarray(np.isfinite(qlo).all(axis=1) & np.isfinite(qhi).all(axis=1), dtype=bool)
-    if not (np.isfinite(blo).all() and np.isfinite(bhi).all()) or not finite.any():
-        out[:] = True
+    finite = np.empty(len(qlo), dtype=np.bool_)
+    glo, ghi = np.empty(3), np.empty(3)
+    if not _query_bounds(qlo, qhi, float(reach), finite, glo, ghi):
+        out[:] = True  # no finite query
         return out
-    glo, ghi = qlo[finite].min(axis=0) - reach, qhi[finite].max(axis=0) + reach
-    if len(blo) >= BOUNDS_FILTER_MIN:
-        # only the boxes that meet the queries' bounds (grown by the reach) can meet a
-        # query (the queries often lie in one part of the boxes: the pieces in the
-        # floor's sheet, under a person's pieces)
-        near = np.all((blo <= ghi) & (bhi >= glo), axis=1)
-        if not near.all():
-            blo, bhi = np.ascontiguousarray(blo[near]), np.ascontiguousarray(bhi[near])
-            if len(blo) == 0:
-                out[~finite] = True
-                return out
+    # only the boxes that meet the queries' bounds (grown by the reach) can meet a query
+    # (the queries often lie in one part of the boxes: the pieces in the floor's sheet,
+    # under a person's pieces); with the grid's origin, extent and cell (see _near_boxes)
+    ok, near, o, side, ext = _near_boxes(blo, bhi, glo, ghi)
+    if not ok:
+        out[:] = True  # a box with a non-finite coordinate
+        return out
+    if len(near) < len(blo):
+        if len(near) == 0:
+            out[~finite] = True
+            return out
+        blo, bhi = blo[near], bhi[near]
     # the boxes binned in a grid of cubes over the queries' reach (cells at least the
     # boxes' median extent and half the reach, at most GRID_CELLS of them; the boxes beyond
     # the grid fall into its outer cells, which reach to infinity)
-    o = np.maximum(glo, blo.min(axis=0))
-    side = np.maximum(np.minimum(ghi, bhi.max(axis=0)) - o, 0.0)
-    cell = max(float(np.median(bhi - blo)), float(reach) / 2.0, 1e-3)
+    cell = max(ext, float(reach) / 2.0, 1e-3)
     n = np.clip(np.ceil(side / cell), 1, GRID_CELLS).astype(np.int64)
     while int(np.prod(n)) > GRID_CELLS:
         cell *= 1.25
@@ -416,9 +468,6 @@ ANY_PARALLEL_MIN = 512
 GRID_CELLS = 16384
 """Most cells of :func:`any_overlap`'s grid (its cubes are at least the boxes' median
 extent and half the reach, larger when that many would not cover the queries' reach)."""
-
-BOUNDS_FILTER_MIN = 32
-"""Fewest boxes :func:`any_overlap` first filters by the queries' bounds."""
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
