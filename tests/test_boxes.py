@@ -15,6 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from polyhull.engine.boxes import (
     ANY_PARALLEL_MIN,
+    BRUTE_QUERIES,
     OverlapSweep,
     TriangleGrid,
     any_near_upright,
@@ -164,9 +165,13 @@ def test_the_box_the_last_query_met_counts_only_if_it_meets_the_next() -> None:
     ball = (np.linalg.norm(gaps, axis=2) <= reach).any(axis=1)
     upright = ((np.linalg.norm(gaps[..., :2], axis=2) <= reach) & (gaps[..., 2] <= reach)).any(axis=1)
     assert ball.tolist() == [True, False, True, False, True, False]
-    assert any_overlap(qlo, qhi, blo, bhi, reach=reach).tolist() == ball.tolist()
-    assert any_near_upright(qlo, qhi, blo, bhi, reach).tolist() == upright.tolist()
-    assert any_overlap(qlo, qhi, blo, bhi).tolist() == [True, False, True, False, False, False]
+    # the six queries alone (tested against every box) and repeated (binned, the last
+    # hit tried first)
+    for times in (1, 1 + BRUTE_QUERIES // len(qlo)):
+        ql, qh = np.tile(qlo, (times, 1)), np.tile(qhi, (times, 1))
+        assert any_overlap(ql, qh, blo, bhi, reach=reach).tolist() == ball.tolist() * times
+        assert any_near_upright(ql, qh, blo, bhi, reach).tolist() == upright.tolist() * times
+        assert any_overlap(ql, qh, blo, bhi).tolist() == [True, False, True, False, False, False] * times
 
 
 def test_any_overlap_reach_is_a_ball() -> None:

@@ -352,8 +352,8 @@ def _query_bounds(qlo, qhi, reach, finite, glo, ghi):  # pragma: no cover - comp
 @nb.njit(cache=True, nogil=True)
 def _near_boxes(blo, bhi, glo, ghi):  # pragma: no cover - compiled
     """The boxes that meet [glo, ghi]: (True, their indices, the grid's origin (3,) and
-    extent (3,) over them and [glo, ghi], their median extent over the three axes), or
-    False first when some box has a non-finite coordinate."""
+    extent (3,) over them and [glo, ghi]), or False first when some box has a non-finite
+    coordinate."""
     m = blo.shape[0]
     idx = np.empty(m, dtype=np.int64)
     k = 0
@@ -363,7 +363,7 @@ def _near_boxes(blo, bhi, glo, ghi):  # pragma: no cover - compiled
         meet = True
         for a in range(3):
             if not (np.isfinite(blo[j, a]) and np.isfinite(bhi[j, a])):
-                return False, idx[:0], bmin, bmax, 0.0
+                return False, idx[:0], bmin, bmax
             meet &= (blo[j, a] <= ghi[a]) & (bhi[j, a] >= glo[a])
         if meet:
             idx[k] = j
@@ -371,13 +371,33 @@ def _near_boxes(blo, bhi, glo, ghi):  # pragma: no cover - compiled
             for a in range(3):
                 bmin[a] = min(bmin[a], blo[j, a])
                 bmax[a] = max(bmax[a], bhi[j, a])
+    o = np.maximum(glo, bmin)
+    side = np.maximum(np.minimum(ghi, bmax) - o, 0.0)
+    return True, idx[:k], o, side
+
+
+@nb.njit(cache=True, nogil=True)
+def _median_extent(blo, bhi):  # pragma: no cover - compiled
+    """The median of the boxes' extents over the three axes."""
+    k = blo.shape[0]
     ext = np.empty(3 * k)
     for t in range(k):
         for a in range(3):
-            ext[3 * t + a] = bhi[idx[t], a] - blo[idx[t], a]
-    o = np.maximum(glo, bmin)
-    side = np.maximum(np.minimum(ghi, bmax) - o, 0.0)
-    return True, idx[:k], o, side, np.median(ext) if k else 0.0
+            ext[3 * t + a] = bhi[t, a] - blo[t, a]
+    return np.median(ext) if k else 0.0
+
+
+@nb.njit(cache=True, nogil=True)
+def _any_brute(qlo, qhi, blo, bhi, reach, dims, out):  # pragma: no cover - compiled
+    """:func:`_any` without a grid: each query against every box (a few queries)."""
+    r2 = reach * reach
+    for i in range(qlo.shape[0]):
+        l0, l1, l2 = qlo[i, 0] - reach, qlo[i, 1] - reach, qlo[i, 2] - reach
+        h0, h1, h2 = qhi[i, 0] + reach, qhi[i, 1] + reach, qhi[i, 2] + reach
+        for j in range(blo.shape[0]):
+            if _meets(qlo, qhi, blo, bhi, i, j, l0, l1, l2, h0, h1, h2, reach, r2, dims):
+                out[i] = True
+                break
 
 
 def any_overlap(
@@ -412,7 +432,7 @@ def any_overlap(
     # only the boxes that meet the queries' bounds (grown by the reach) can meet a query
     # (the queries often lie in one part of the boxes: the pieces in the floor's sheet,
     # under a person's pieces); with the grid's origin, extent and cell (see _near_boxes)
-    ok, near, o, side, ext = _near_boxes(blo, bhi, glo, ghi)
+    ok, near, o, side = _near_boxes(blo, bhi, glo, ghi)
     if not ok:
         out[:] = True  # a box with a non-finite coordinate
         return out
@@ -421,17 +441,22 @@ def any_overlap(
             out[~finite] = True
             return out
         blo, bhi = blo[near], bhi[near]
+    if not finite.all():  # (answered at the end)
+        qlo, qhi = np.where(finite[:, None], qlo, 0.0), np.where(finite[:, None], qhi, 0.0)
+    if len(qlo) <= BRUTE_QUERIES:
+        # a few queries: each against every box costs less than binning the boxes
+        _any_brute(qlo, qhi, blo, bhi, float(reach), 2 if upright else 3, out)
+        out[~finite] = True
+        return out
     # the boxes binned in a grid of cubes over the queries' reach (cells at least the
     # boxes' median extent and half the reach, at most GRID_CELLS of them; the boxes beyond
     # the grid fall into its outer cells, which reach to infinity)
-    cell = max(ext, float(reach) / 2.0, 1e-3)
+    cell = max(float(_median_extent(blo, bhi)), float(reach) / 2.0, 1e-3)
     n = np.clip(np.ceil(side / cell), 1, GRID_CELLS).astype(np.int64)
     while int(np.prod(n)) > GRID_CELLS:
         cell *= 1.25
         n = np.clip(np.ceil(side / cell), 1, GRID_CELLS).astype(np.int64)
     start, items = _bin_boxes(blo, bhi, o, cell, n)
-    if not finite.all():  # (answered below)
-        qlo, qhi = np.where(finite[:, None], qlo, 0.0), np.where(finite[:, None], qhi, 0.0)
 
     def run(sl: slice) -> np.ndarray:
         ql, qh = np.ascontiguousarray(qlo[sl]), np.ascontiguousarray(qhi[sl])
@@ -464,6 +489,10 @@ def any_near_upright(
 
 ANY_PARALLEL_MIN = 512
 """Fewest queries :func:`any_overlap` splits over two threads."""
+
+BRUTE_QUERIES = 8
+"""Most queries :func:`any_overlap` tests against every box, without binning the boxes (a
+query against a box costs a few nanoseconds; binning a box, tens)."""
 
 GRID_CELLS = 16384
 """Most cells of :func:`any_overlap`'s grid (its cubes are at least the boxes' median
