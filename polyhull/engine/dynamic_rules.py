@@ -686,21 +686,32 @@ def _removed(
     """The removals to report: per component, its pieces the shell rule cut (``too_thin``),
     then every component a rule removed whole (``rule_of``, of ``component_volume``),
     with volume and centroid (the pieces' ``vertices`` (N, 8, 3) for their drawing)."""
-    removed = []
+    removed: list[RemovedComponent] = []
+    if not (shell_cut.any() or removed_c.any()):
+        return ()
     # each component's pieces, in order (one sort, not a pass over all pieces per component)
     by_label = np.argsort(labels, kind="stable")
     starts = np.searchsorted(labels[by_label], np.arange(K + 1))
+    # per component, the volume and the volume-weighted centre of its pieces, and of its
+    # pieces the shell rule cut (bincounts, not numpy calls per component)
+    centre = 0.5 * (lo + hi) * volumes[:, None]
+    cut_w = np.where(shell_cut, volumes, 0.0)
+    sums = [np.bincount(labels, weights=w, minlength=K) for w in (volumes, cut_w)]
+    moments = [
+        np.stack([np.bincount(labels, weights=centre[:, a] * m, minlength=K) for a in range(3)], axis=1)
+        for m in (1.0, shell_cut)
+    ]
 
-    def one(rule: str, idx: np.ndarray, volume: float | None = None) -> RemovedComponent:
-        vol = float(volumes[idx].sum())
-        centroid = (0.5 * (lo[idx] + hi[idx]) * volumes[idx, None]).sum(axis=0) / max(vol, 1e-12)
+    def one(rule: str, k: int, idx: np.ndarray, cut: int, volume: float | None = None) -> RemovedComponent:
+        vol = float(sums[cut][k])
+        centroid = moments[cut][k] / max(vol, 1e-12)
         return RemovedComponent(rule, vol if volume is None else volume, centroid, LazyMesh(make_mesh, idx, vertices))
 
     for k in np.unique(labels[shell_cut & ~removed_c[labels]]):
         idx = by_label[starts[k] : starts[k + 1]]
-        removed.append(one("too_thin", idx[shell_cut[idx]]))
+        removed.append(one("too_thin", int(k), idx[shell_cut[idx]], 1))
     for k in np.nonzero(removed_c)[0]:
-        removed.append(one(str(rule_of[k]), by_label[starts[k] : starts[k + 1]], float(component_volume[k])))
+        removed.append(one(str(rule_of[k]), int(k), by_label[starts[k] : starts[k + 1]], 0, float(component_volume[k])))
     return tuple(removed)
 
 
