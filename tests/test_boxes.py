@@ -80,16 +80,39 @@ def test_touching_boxes_group_like_brute_force(seed: int, n: int, cells: int, fl
 )
 def test_a_sweep_in_parts_gives_the_groups_of_one_scan(seed: int, n: int, parts: int, lattice: bool, inverted: int) -> None:
     """The parts' forests, scanned in any order (as two threads do), join into the labels of
-    one scan; the parts cover every box once, also with inverted boxes (lo > hi)."""
+    one scan; the parts cover every entry (a box in every strip it meets) once, also with
+    inverted boxes (lo > hi: in no strip when inverted along z)."""
     lo, hi = _lattice_boxes(seed, n, 6) if lattice else _random_boxes(seed, n, 1.0)
     k = min(inverted, n)
     lo[:k], hi[:k] = hi[:k] + 0.05, lo[:k].copy()
     sweep = OverlapSweep(lo, hi, parts)
-    assert sweep.parts == parts and sweep.bounds[0] == 0 and sweep.bounds[-1] == n
+    assert sweep.parts == parts and sweep.bounds[0] == 0 and sweep.bounds[-1] == sweep.entries >= n - k
     assert np.all(np.diff(sweep.bounds) >= 0)
     order = np.random.default_rng(seed).permutation(parts)
     forests = {int(p): sweep.scan(int(p)) for p in order}
     assert np.array_equal(sweep.labels([forests[p] for p in range(parts)]), overlap_groups(lo, hi))
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.integers(50, 600), tall=st.integers(0, 20), infinite=st.booleans())
+def test_a_body_over_a_sheet_groups_like_brute_force(seed: int, n: int, tall: int, infinite: bool) -> None:
+    """Many small boxes in columns over a thin layer (a body standing in the floor's
+    sheet: many strips), some boxes as tall as the whole body (in every strip), maybe one
+    reaching to infinity along z (in the outer strips): the strips' groups are the
+    connected components of overlap."""
+    rng = np.random.default_rng(seed)
+    lo = np.column_stack([rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 1.0, n), rng.uniform(0.0, 1.8, n)])
+    hi = lo + rng.uniform(0.01, 0.08, size=(n, 3))
+    sheet = rng.random(n) < 0.3
+    lo[sheet, 2], hi[sheet, 2] = 0.0, 0.02
+    k = min(tall, n)
+    lo[:k, 2], hi[:k, 2] = 0.0, 1.9
+    if infinite:
+        hi[n - 1, 2] = np.inf
+    _assert_same_groups(lo, hi)
+    sweep = OverlapSweep(lo, hi, 3)
+    assert sweep.entries > n  # tall boxes are in several strips
+    assert np.array_equal(sweep.labels([sweep.scan(p) for p in range(3)]), overlap_groups(lo, hi))
 
 
 def test_groups_of_no_box_and_of_one_box() -> None:

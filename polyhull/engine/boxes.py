@@ -40,11 +40,11 @@ def _find(parent, i):  # pragma: no cover - compiled
 
 @nb.njit(cache=True, nogil=True)
 def _started_before_end(lo_sorted, hi_sorted):  # pragma: no cover - compiled
-    """(3,) per axis, the sum over boxes of how many boxes start (``lo``) at or before the
-    box's end (``hi``), from each axis' sorted starts and sorted ends (3, N), by merging."""
+    """(A,) per axis, the sum over boxes of how many boxes start (``lo``) at or before the
+    box's end (``hi``), from each axis' sorted starts and sorted ends (A, N), by merging."""
     n = lo_sorted.shape[1]
-    out = np.zeros(3, dtype=np.int64)
-    for a in range(3):
+    out = np.zeros(lo_sorted.shape[0], dtype=np.int64)
+    for a in range(lo_sorted.shape[0]):
         j = 0
         total = 0
         for i in range(n):
@@ -57,47 +57,76 @@ def _started_before_end(lo_sorted, hi_sorted):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _sweep_arrays(lo, hi, axis, order):  # pragma: no cover - compiled
-    """The boxes [lo, hi] (3, N) in sweep ``order`` along ``axis`` as a structure of arrays
-    (6, N): the start along the axis, the two other axes' bounds (lo, hi, lo, hi), the end
-    along the axis; and each box's scan end (N,): the first box starting after it ends."""
+def _strip_arrays(lo, hi, axis, order, z0, w, S):  # pragma: no cover - compiled
+    """The boxes [lo, hi] (3, N) binned in ``S`` strips of width ``w`` along z from ``z0``
+    (a box in every strip its z extent meets; the outer strips reach to infinity; a box
+    with no z extent, inverted or NaN, in none: it meets no box), each strip's boxes in
+    sweep ``order`` along ``axis``: (the entries' boxes (E,), their structure of arrays
+    (6, E): the start along the axis, the two other axes' bounds (lo, hi, lo, hi), the end
+    along the axis; each entry's scan end (E,): the first entry of its strip starting after
+    it ends)."""
     n = lo.shape[1]
     b, c = (1, 2) if axis == 0 else ((0, 2) if axis == 1 else (0, 1))
-    soa = np.empty((6, n))
+    first = np.empty(n, dtype=np.int64)
+    last = np.empty(n, dtype=np.int64)
+    count = np.zeros(S + 1, dtype=np.int64)
+    for i in range(n):
+        zl, zh = lo[2, i], hi[2, i]
+        if not zl <= zh:  # inverted or NaN
+            first[i], last[i] = 0, -1
+            continue
+        first[i] = _bin(zl, z0, w, S)
+        last[i] = _bin(zh, z0, w, S)
+        for st in range(first[i], last[i] + 1):
+            count[st + 1] += 1
+    for st in range(S):
+        count[st + 1] += count[st]
+    E = count[S]
+    ids = np.empty(E, dtype=np.int64)
+    soa = np.empty((6, E))
+    fill = count[:-1].copy()
     for k in range(n):
         i = order[k]
-        soa[0, k] = lo[axis, i]
-        soa[1, k] = lo[b, i]
-        soa[2, k] = hi[b, i]
-        soa[3, k] = lo[c, i]
-        soa[4, k] = hi[c, i]
-        soa[5, k] = hi[axis, i]
-    return soa, np.searchsorted(soa[0], soa[5], side="right")
+        for st in range(first[i], last[i] + 1):
+            e = fill[st]
+            fill[st] += 1
+            ids[e] = i
+            soa[0, e] = lo[axis, i]
+            soa[1, e] = lo[b, i]
+            soa[2, e] = hi[b, i]
+            soa[3, e] = lo[c, i]
+            soa[4, e] = hi[c, i]
+            soa[5, e] = hi[axis, i]
+    end = np.empty(E, dtype=np.int64)
+    for st in range(S):
+        e0, e1 = count[st], count[st + 1]
+        if e1 > e0:  # the first entry of the strip starting after each one ends
+            end[e0:e1] = np.searchsorted(soa[0, e0:e1], soa[5, e0:e1], side="right") + e0
+    return ids, soa, end
 
 
 @nb.njit(cache=True, nogil=True)
-def _scan(soa, end, i0, i1):  # pragma: no cover - compiled
-    """A union-find forest (N,) of the overlaps of boxes ``i0 <= i < i1`` (sweep order)
-    with the boxes after them.
+def _scan(ids, soa, end, n, i0, i1):  # pragma: no cover - compiled
+    """A union-find forest (n,) over the boxes of the overlaps of entries ``i0 <= i < i1``
+    (:func:`_strip_arrays`) with the entries after them in their strip.
 
-    Sweep and prune: each box scans the boxes that start within its extent along the
-    sweep axis. The scan is branch-free (each candidate's overlap along the two other axes
-    adds 0 or 1 to a running count, its index kept when it is 1), so it costs about a
-    nanosecond per candidate with no mispredicted branches; the union-find then joins only
-    the boxes that do overlap."""
-    n = soa.shape[1]
+    Sweep and prune: each entry scans the entries of its strip that start within its
+    extent along the sweep axis. The scan is branch-free (each candidate's overlap along
+    the two other axes adds 0 or 1 to a running count, its box kept when it is 1), so it
+    costs about a nanosecond per candidate with no mispredicted branches; the union-find
+    then joins only the boxes that do overlap."""
     ly, hy, lz, hz = soa[1], soa[2], soa[3], soa[4]
     parent = np.arange(n)
-    hits = np.empty(n, dtype=np.int64)
+    hits = np.empty(soa.shape[1], dtype=np.int64)
     for i in range(i0, i1):
         y0, y1, z0, z1 = ly[i], hy[i], lz[i], hz[i]
         m = 0
         for j in range(i + 1, end[i]):
-            hits[m] = j
+            hits[m] = ids[j]
             m += (ly[j] <= y1) & (hy[j] >= y0) & (lz[j] <= z1) & (hz[j] >= z0)
         if m == 0:
             continue
-        ri = _find(parent, i)
+        ri = _find(parent, ids[i])
         for k in range(m):
             rj = _find(parent, hits[k])
             if rj != ri:
@@ -106,9 +135,9 @@ def _scan(soa, end, i0, i1):  # pragma: no cover - compiled
 
 
 @nb.njit(cache=True, nogil=True)
-def _labels(forests, order):  # pragma: no cover - compiled
-    """Labels 0..K-1 (input order, groups numbered by their first box) of the union of
-    the union-find forests (P, N) over the boxes in sweep ``order``."""
+def _labels(forests):  # pragma: no cover - compiled
+    """Labels 0..K-1 (groups numbered by their first box) of the union of the union-find
+    forests (P, N) over the boxes."""
     n = forests.shape[1]
     parent = forests[0].copy()
     for f in range(1, forests.shape[0]):
@@ -120,12 +149,9 @@ def _labels(forests, order):  # pragma: no cover - compiled
                     parent[b] = a
     first = np.full(n, -1, dtype=np.int64)
     labels = np.empty(n, dtype=np.int64)
-    root_of = np.empty(n, dtype=np.int64)
-    for k in range(n):
-        root_of[order[k]] = _find(parent, k)
     count = 0
     for i in range(n):
-        r = root_of[i]
+        r = _find(parent, i)
         if first[r] < 0:
             first[r] = count
             count += 1
@@ -134,10 +160,13 @@ def _labels(forests, order):  # pragma: no cover - compiled
 
 
 class OverlapSweep:
-    """:func:`overlap_groups` in parts: the boxes are sorted once, :meth:`scan` scans one
-    part (any thread, each part once; the parts hold about equal numbers of candidate
+    """:func:`overlap_groups` in parts: the boxes are binned in horizontal strips (each
+    box in every strip its z extent meets: a body standing over the floor's sheet is not
+    swept with the sheet under it) and sorted along a sweep axis once, :meth:`scan` scans
+    one part (any thread, each part once; the parts hold about equal numbers of candidate
     pairs), and :meth:`labels` joins the parts' forests into the groups (those of one
-    scan: the union of the parts' overlaps is every overlap)."""
+    scan: the union of the parts' overlaps is every overlap; two boxes that overlap meet
+    in a strip)."""
 
     def __init__(self, lo: ArrayF64, hi: ArrayF64, parts: int = 1) -> None:
         lo = np.asarray(lo, dtype=np.float64)
@@ -145,38 +174,62 @@ class OverlapSweep:
         if lo.ndim != 2 or lo.shape[1:] != (3,) or hi.shape != lo.shape:
             raise GeometryError(f"overlap_groups: expected lo and hi of shape (N, 3), got {lo.shape} and {hi.shape}")
         n = lo.shape[0]
+        self._n = n
         parts = max(int(parts), 1)
         lo_t = np.ascontiguousarray(lo.T)  # (3, N)
         hi_t = np.ascontiguousarray(hi.T)
+        # the strips: twice the boxes' median height, at most STRIPS of them
+        ok = np.isfinite(lo_t[2]) & np.isfinite(hi_t[2]) & (lo_t[2] <= hi_t[2])
+        z0, w, S = 0.0, 1.0, 1
+        if ok.any():
+            zl, zh = lo_t[2][ok], hi_t[2][ok]
+            span = float(zh.max() - zl.min())
+            w = max(2.0 * float(np.median(zh - zl)), span / STRIPS, 1e-9)
+            z0, S = float(zl.min()), int(min(max(np.ceil(span / w), 1), STRIPS))
         # sweep along the axis with the fewest candidate pairs (boxes starting within a box's
-        # extent along it): per axis, the boxes starting before each box ends (the pairs that
-        # start before a box starts add the same n (n - 1) / 2 on every axis); numpy's sorts
-        # are vectorised, so the sorting stays outside the compiled code
-        axis = int(np.argmin(_started_before_end(np.sort(lo_t, axis=1), np.sort(hi_t, axis=1)))) if n else 0
-        self._order = np.argsort(lo_t[axis])
-        self._soa, self._end = _sweep_arrays(lo_t, hi_t, axis, self._order)
-        # the parts' first boxes, at equal shares of the candidates
-        cand = np.cumsum(np.maximum(self._end - np.arange(n) - 1, 0))  # (an inverted box has none)
-        total = float(cand[-1]) if n else 0.0
+        # extent along it), not z when there are strips: per axis, the boxes starting before
+        # each box ends (the pairs that start before a box starts add the same n (n - 1) / 2
+        # on every axis); numpy's sorts are vectorised, so the sorting stays outside the
+        # compiled code
+        axis = 0
+        if n:
+            k = 2 if S > 1 else 3  # the axes to choose from
+            started = _started_before_end(np.sort(lo_t[:k], axis=1), np.sort(hi_t[:k], axis=1))
+            axis = int(np.argmin(started))
+        order = np.argsort(lo_t[axis])
+        self._ids, self._soa, self._end = _strip_arrays(lo_t, hi_t, axis, order, z0, w, S)
+        # the parts' first entries, at equal shares of the candidates
+        E = len(self._ids)
+        cand = np.cumsum(np.maximum(self._end - np.arange(E) - 1, 0))  # (an inverted box has none)
+        total = float(cand[-1]) if E else 0.0
         cuts = np.searchsorted(cand, total * np.arange(1, parts) / parts, side="right")
-        self.bounds = np.concatenate([[0], cuts, [n]]).astype(np.int64)
-        """Part p scans the boxes ``bounds[p] <= i < bounds[p + 1]`` (sweep order)."""
+        self.bounds = np.concatenate([[0], cuts, [E]]).astype(np.int64)
+        """Part p scans the entries ``bounds[p] <= i < bounds[p + 1]`` (strip by strip)."""
 
     @property
     def parts(self) -> int:
         """The number of parts."""
         return len(self.bounds) - 1
 
+    @property
+    def entries(self) -> int:
+        """The number of entries: a box once for every strip it is in."""
+        return len(self._ids)
+
     def scan(self, part: int) -> np.ndarray:
         """The union-find forest (N,) of one part's overlaps."""
-        return _scan(self._soa, self._end, int(self.bounds[part]), int(self.bounds[part + 1]))
+        return _scan(self._ids, self._soa, self._end, self._n, int(self.bounds[part]), int(self.bounds[part + 1]))
 
     def labels(self, forests: list[np.ndarray]) -> np.ndarray:
         """(N,) labels 0..K-1 (input order, numbered by each group's first box) from every
         part's forest."""
-        if not len(self._order):
+        if not self._n:
             return np.zeros(0, dtype=np.int64)
-        return _labels(np.stack(forests), self._order)
+        return _labels(np.stack(forests))
+
+
+STRIPS = 1024
+"""Most strips of :class:`OverlapSweep`."""
 
 
 def overlap_groups(lo: ArrayF64, hi: ArrayF64) -> np.ndarray:
