@@ -286,28 +286,27 @@ def _bin_boxes(blo, bhi, o, cell, n):  # pragma: no cover - compiled
     m = blo.shape[0]
     nc = n[0] * n[1] * n[2]
     start = np.zeros(nc + 1, dtype=np.int64)
-    for j in range(m):
-        ix0, ix1 = _bin(blo[j, 0], o[0], cell, n[0]), _bin(bhi[j, 0], o[0], cell, n[0])
-        iy0, iy1 = _bin(blo[j, 1], o[1], cell, n[1]), _bin(bhi[j, 1], o[1], cell, n[1])
-        iz0, iz1 = _bin(blo[j, 2], o[2], cell, n[2]), _bin(bhi[j, 2], o[2], cell, n[2])
-        for iz in range(iz0, iz1 + 1):
-            for iy in range(iy0, iy1 + 1):
-                for ix in range(ix0, ix1 + 1):
-                    start[(iz * n[1] + iy) * n[0] + ix + 1] += 1
-    for c in range(nc):
-        start[c + 1] += start[c]
-    items = np.empty(start[nc], dtype=np.int64)
-    fill = start[:-1].copy()
-    for j in range(m):
-        ix0, ix1 = _bin(blo[j, 0], o[0], cell, n[0]), _bin(bhi[j, 0], o[0], cell, n[0])
-        iy0, iy1 = _bin(blo[j, 1], o[1], cell, n[1]), _bin(bhi[j, 1], o[1], cell, n[1])
-        iz0, iz1 = _bin(blo[j, 2], o[2], cell, n[2]), _bin(bhi[j, 2], o[2], cell, n[2])
-        for iz in range(iz0, iz1 + 1):
-            for iy in range(iy0, iy1 + 1):
-                for ix in range(ix0, ix1 + 1):
-                    c = (iz * n[1] + iy) * n[0] + ix
-                    items[fill[c]] = j
-                    fill[c] += 1
+    items = np.empty(0, dtype=np.int64)
+    fill = start[:-1]
+    for counting in (True, False):  # count each cell's boxes, then list them
+        for j in range(m):
+            ix0, ix1 = _bin(blo[j, 0], o[0], cell, n[0]), _bin(bhi[j, 0], o[0], cell, n[0])
+            iy0, iy1 = _bin(blo[j, 1], o[1], cell, n[1]), _bin(bhi[j, 1], o[1], cell, n[1])
+            iz0, iz1 = _bin(blo[j, 2], o[2], cell, n[2]), _bin(bhi[j, 2], o[2], cell, n[2])
+            for iz in range(iz0, iz1 + 1):
+                for iy in range(iy0, iy1 + 1):
+                    for ix in range(ix0, ix1 + 1):
+                        c = (iz * n[1] + iy) * n[0] + ix
+                        if counting:
+                            start[c + 1] += 1
+                        else:
+                            items[fill[c]] = j
+                            fill[c] += 1
+        if counting:
+            for c in range(nc):
+                start[c + 1] += start[c]
+            items = np.empty(start[nc], dtype=np.int64)
+            fill = start[:-1].copy()
     return start, items
 
 
