@@ -57,6 +57,7 @@ from .engine.dynamic_rules import (
     DynamicContext,
     DynamicResult,
     crosses_sheet_top,
+    hidden_legs,
     in_shells,
     judge_dynamic,
     sheets_under,
@@ -100,7 +101,7 @@ from .engine.refine import (
 from .engine.robot_pose import NO_ROBOT, RobotPieces, RobotPose
 from .engine.robot_raster import PaddedPieces, RasterBuffers, RobotRaster, rasterize_robot
 from .engine.static_model import StaticModel
-from .engine.threads import share
+from .engine.threads import Beside, share
 from .engine.warmup import warmup_frames
 from .errors import PolyhullError
 from .frames import DepthFrame
@@ -175,6 +176,17 @@ class _Memory(NamedTuple):
     pieces: PieceSet
     front: PieceSet
     seeds: tuple[ArrayF64, ArrayF64, float] | None
+
+
+class _History(NamedTuple):
+    """What the distance stage needs late, and what the next cycle keeps of this one
+    (:meth:`Monitor._beside_distance`)."""
+
+    leg_sheets: ArrayF64  # (L, 8, 3) the sheet boxes under the legs the robot may hide
+    kept_lo: ArrayF64  # (K, 3) the kept pieces' boxes
+    kept_hi: ArrayF64
+    seed_lo: ArrayF64  # (S, 3) the shadow memory's seeds' boxes
+    seed_hi: ArrayF64
 
 
 @dataclass(frozen=True, eq=False)
@@ -650,13 +662,24 @@ class Monitor:
                 f"coverage lost: only {max(free_share, 0.0):.1%} of the zone is surely seen free "
                 f"(< {self.cell.safety.min_free_share:.1%})"
             )
-        refined = self._timed(
-            timings, "distance", lambda: self._distance(pose, carving, allp, len(pieces), len(memory.front), judged, ctx, memory.seeds)
-        )
+        # on a pool thread, beside the distance stage: what it needs only when it first
+        # measures the region, and the next cycle's history
+        beside = Beside(self._pool, lambda: self._beside_distance(allp, judged, ctx, images))
+        try:
+            refined = self._timed(
+                timings,
+                "distance",
+                lambda: self._distance(
+                    pose, carving, allp, len(pieces), len(memory.front), judged, ctx, memory.seeds,
+                    lambda: beside.result().leg_sheets,
+                ),
+            )
+        finally:
+            beside.wait()
         dist = refined.distance
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
-        self._remember(t, allp, judged, images, float(dist.distance))
+        self._remember(t, images, float(dist.distance), beside.result())
         # the removals to report (before the latency: the caller waits for them too)
         gap_boxes = images.gaps
         gap_verts = piece_vertices(gap_boxes, self._stack)
@@ -945,9 +968,11 @@ class Monitor:
         result: DynamicResult,
         ctx: DynamicContext,
         seeds: tuple[ArrayF64, ArrayF64, float] | None,
+        leg_sheets: Callable[[], ArrayF64],
     ) -> Refined:
         """Stage ``distance``: the distance, with the kept pieces that decide it carved
-        finely (the frontier), and the sheets under what stands on a surface."""
+        finely (the frontier), and the sheets under what stands on a surface (and, from
+        ``leg_sheets()``, under the legs the robot may hide)."""
         index = np.arange(len(allp))
         flags = (
             np.where(result.own, OWN, 0)
@@ -982,20 +1007,27 @@ class Monitor:
             np.zeros((0, 4)) if no_refine else spheres, self._carve.alpha,
             functools.partial(carving.recarve, seeds=seeds), measure, self._pool,
             carving.front if carving.front_known else None, spheres[measured] if len(spheres) else None,
-            sheets_under(result.legs, ctx, horizontal=True),
+            leg_sheets,
         )
 
-    def _remember(
-        self, t: float, allp: PieceSet, result: DynamicResult, images: _Images, distance: float
-    ) -> None:
-        """History for the next cycle: the kept dynamic pieces' boxes (not the sheet boxes,
-        which are the static noise layer under them, not an observation), the memory's
-        seeds, the frontier and this cycle's images."""
-        self._prev_lo, self._prev_hi = vertex_bounds(allp.vertices[result.keep])
+    def _beside_distance(self, allp: PieceSet, result: DynamicResult, ctx: DynamicContext, images: _Images) -> _History:
+        """The sheets under the legs the robot may hide (:func:`hidden_legs`), and the next
+        cycle's history from this cycle's judged pieces: the kept pieces' boxes (not the
+        sheet boxes, which are the static noise layer under them, not an observation) and
+        the shadow memory's seeds. Runs beside the distance stage (reads, writes nothing)."""
+        hiding = allp.vertices[result.hiding]
+        legs = hidden_legs(*vertex_bounds(hiding), np.ones(len(hiding), dtype=bool), ctx)
         seeds = seen_parts(
             allp.boxes[result.seeds], images.free, self._stack, self._binary, [p.invalid for p in images.pixels]
         )
-        self._seed_lo, self._seed_hi = vertex_bounds(seeds)
+        return _History(
+            sheets_under(legs, ctx, horizontal=True), *vertex_bounds(allp.vertices[result.keep]), *vertex_bounds(seeds)
+        )
+
+    def _remember(self, t: float, images: _Images, distance: float, history: _History) -> None:
+        """History for the next cycle: ``history``, the frontier and this cycle's images."""
+        self._prev_lo, self._prev_hi = history.kept_lo, history.kept_hi
+        self._seed_lo, self._seed_hi = history.seed_lo, history.seed_hi
         self._prev_stamp = t
         self._prev_distance = distance
         names = [c.name for c in self.cell.cameras]

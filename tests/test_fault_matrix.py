@@ -11,6 +11,7 @@ fault: it does not stop the robot and does not latch.
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
@@ -97,6 +98,12 @@ def _raise_geometry(*args: object, **kwargs: object) -> None:
     raise GeometryError("FCL distance query failed on link 'link6'")
 
 
+def _raise_beside(*args: object, **kwargs: object) -> None:
+    """A failure on the pool thread beside the distance stage (the legs' sheets)."""
+    time.sleep(0.05)  # still running when the stage itself is done
+    raise GeometryError("legs' columns failed")
+
+
 ROWS: dict[str, Row] = {
     "frame missing": Row(
         lambda m: {"frames": _frames(T0, sw=None), "q": _q(m), "stamp": T0}, ("sw", "frame missing")
@@ -165,6 +172,11 @@ ROWS: dict[str, Row] = {
         lambda m: {"frames": _frames(T0), "q": _q(m), "stamp": T0},
         ("GeometryError", "FCL distance query failed"),
         patch=lambda mp: mp.setattr(RobotDistanceModel, "distance", _raise_geometry),
+    ),
+    "failure beside the distance stage": Row(
+        lambda m: {"frames": _frames(T0), "q": _q(m), "stamp": T0},
+        ("GeometryError", "legs' columns failed"),
+        patch=lambda mp: mp.setattr(monitor_module, "hidden_legs", _raise_beside),
     ),
 }
 

@@ -8,7 +8,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
-from polyhull.engine.threads import share
+from polyhull.engine.threads import Beside, share
 
 
 def test_results_in_order_on_two_threads() -> None:
@@ -42,3 +42,26 @@ def test_an_error_waits_for_the_other_thread() -> None:
         with pytest.raises(ValueError, match="item 0"):
             share(pool, fn, [0, 1])
         assert done == [1]
+
+
+def test_beside_runs_on_a_pool_thread_and_keeps_its_error_for_result() -> None:
+    here = threading.get_ident()
+    with ThreadPoolExecutor(1) as pool:
+        job = Beside(pool, lambda: (time.sleep(0.02), threading.get_ident())[1])
+        assert job.result() != here  # ran on the pool's thread
+        assert job.result() == job.result()
+
+        def fails() -> int:
+            time.sleep(0.02)
+            raise ValueError("beside")
+
+        bad = Beside(pool, fails)
+        bad.wait()  # waits, does not raise
+        with pytest.raises(ValueError, match="beside"):
+            bad.result()
+    # without a pool: at once, on this thread, the error kept for result() likewise
+    assert Beside(None, threading.get_ident).result() == here
+    bad = Beside(None, fails)
+    bad.wait()
+    with pytest.raises(ValueError, match="beside"):
+        bad.result()

@@ -67,6 +67,7 @@ floor's sheet, or lie in the hanging box.
 from __future__ import annotations
 
 import functools
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -216,9 +217,10 @@ class DynamicResult:
         seeds: (N,) the kept pieces the next cycle's shadow memory grows from: pieces (not
             of the memory, not inside a shell or a noise sheet) of components that pass
             too_small on their own volume and stand on a surface or touch the boundary.
-        legs: (L, 8, 3) boxes standing for the legs the robot may hide under the kept
-            components that touch M (:func:`hidden_legs`): the floor's sheet is kept
-            under them (:func:`sheets_under`), where the feet are.
+        hiding: (N,) the pieces of ``own`` in components that touch M: the legs the
+            robot may hide stand under them (:func:`hidden_legs`, all False without
+            ``too_thin``), and the floor's sheet is kept under those legs
+            (:func:`sheets_under`), where the feet are.
         residue: (N,) the pieces made only of the far part of a small gap (as given).
     """
 
@@ -229,7 +231,7 @@ class DynamicResult:
     inside: np.ndarray
     removed: tuple[RemovedComponent, ...]
     seeds: np.ndarray
-    legs: ArrayF64
+    hiding: np.ndarray
     residue: np.ndarray
 
 
@@ -509,7 +511,7 @@ def judge_dynamic(
     n = vertices.shape[0]
     if n == 0:
         none = np.zeros(0, bool)
-        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), none, np.zeros((0, 8, 3)), none)
+        return DynamicResult(none, np.zeros(0, np.int64), none, none, none, (), none, none, none)
     p = ctx.params
     eps = p.support_eps
     lo, hi = vertex_bounds(vertices)
@@ -608,8 +610,8 @@ def judge_dynamic(
     # Pieces inside a shell or a noise sheet are left out: feet in the floor's sheet lie
     # within the sheet margin of the legs that seed.
     seeds = own & ~inside & (on_surface | (boundary & p.keep_at_boundary) | ~np.bool_(p.flying))[labels]
-    legs = hidden_legs(lo, hi, own & touch_m[labels], ctx) if p.too_thin else np.zeros((0, 8, 3))
-    return DynamicResult(keep, labels, own, spared, inside, removed, seeds, legs, residue)
+    hiding = own & touch_m[labels] if p.too_thin else np.zeros(n, dtype=bool)
+    return DynamicResult(keep, labels, own, spared, inside, removed, seeds, hiding, residue)
 
 
 class _Components(NamedTuple):
@@ -637,9 +639,9 @@ def _components(
 ) -> _Components:
     """The components: boxes whose growths by TOUCH_EPS overlap, transitively (pieces that
     touch or overlap have overlapping bounding boxes, so every true component lies in one
-    group; grouping more only makes the rules fire less). Their sweep in parts, and the
-    per-piece tests, run on this thread and one of the pool's (each taking the next task
-    when done: the tests first)."""
+    group; grouping more only makes the rules fire less). The sweep's construction, the
+    per-piece tests and the sweep's parts run on this thread and one of the pool's (each
+    taking the next task when done, in that order: the tests beside the construction)."""
     p = ctx.params
     eps = p.support_eps
     n = len(vertices)
@@ -653,17 +655,28 @@ def _components(
         return ctx.static_touch.any_in(lo, hi), near_robot, inside, sheet_pairs
 
     two = pool if n >= PARALLEL_MIN else None  # fewer: a thread's wake-up costs more than the work
-    sweep = OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, GROUP_PARTS if two is not None else 1)
+    parts = GROUP_PARTS if two is not None else 1
+    sweep: list[OverlapSweep] = []  # built by the first task, while the other thread tests
+    built = threading.Event()
     tests = []
 
     def task(i: int) -> np.ndarray | None:
-        if i < 0:
+        if i == -2:
+            try:
+                sweep.append(OverlapSweep(lo - TOUCH_EPS, hi + TOUCH_EPS, parts))
+            finally:
+                built.set()  # (a failed build raises here; the scans then return nothing)
+            return None
+        if i == -1:
             tests.append(per_piece())
             return None
-        return sweep.scan(i)
+        built.wait()
+        return sweep[0].scan(i) if sweep else None
 
-    forests = share(two, task, range(-1, sweep.parts))
-    labels = sweep.labels([f for f in forests if f is not None])
+    # the tasks are taken in order: the build first, so a scan waits only for a build
+    # another thread runs
+    forests = share(two, task, range(-2, parts))
+    labels = sweep[0].labels([f for f in forests if f is not None])
     K = int(labels.max()) + 1
     clo, chi = group_bounds(labels, lo, hi, K)
     volume = np.asarray(np.bincount(labels, weights=volumes, minlength=K), dtype=np.float64)
@@ -748,21 +761,9 @@ def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicCo
     zlo = np.asarray(ctx.zone.min, dtype=np.float64)
     zhi = np.asarray(ctx.zone.max, dtype=np.float64)
     g = LEG_GRID
-    a = np.floor((np.clip(lo[touching, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
-    b = np.ceil((np.clip(hi[touching, :2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(np.int64)
-    base = a.min(axis=0)
-    a, b = a - base, b - base
-    shape = b.max(axis=0) + 1
-    # the union of the footprints as grid cells (a 2-D difference array)
-    occ = np.zeros((int(shape[0]) + 1, int(shape[1]) + 1), dtype=np.int64)
-    np.add.at(occ, (a[:, 0], a[:, 1]), 1)
-    np.add.at(occ, (b[:, 0], a[:, 1]), -1)
-    np.add.at(occ, (a[:, 0], b[:, 1]), -1)
-    np.add.at(occ, (b[:, 0], b[:, 1]), 1)
-    cells = np.argwhere(occ.cumsum(0).cumsum(1)[:-1, :-1] > 0)
-    if len(cells) == 0:
+    xy = _footprint_columns(lo, hi, touching, zlo, zhi, g)
+    if len(xy) == 0:
         return np.zeros((0, 8, 3))
-    xy = zlo[:2] + (cells + base + 0.5) * g
     col = np.isfinite(ctx.m_columns(xy, zlo[2] + np.asarray(LEG_HEIGHTS)))
     if not col.any():
         return np.zeros((0, 8, 3))
@@ -770,6 +771,47 @@ def hidden_legs(lo: ArrayF64, hi: ArrayF64, touching: np.ndarray, ctx: DynamicCo
     c0 = xy[col] - 0.5 * g
     z0 = np.full(len(c0), zlo[2] - ctx.params.support_eps)
     return box_vertices(np.column_stack([c0, z0]), np.column_stack([c0 + g, z0 + ctx.params.support_eps + LEG_HEIGHTS[-1]]))
+
+
+@nb.njit(cache=True, nogil=True)
+def _footprint_columns(lo, hi, touching, zlo, zhi, g):  # pragma: no cover - compiled
+    """(C, 2) the centres of the cells of a ``g`` grid (from ``zlo``) that the footprints
+    of the boxes ``touching`` cover (clipped to the zone ``[zlo, zhi]``; a box covers the
+    cells ``floor(lo / g) <= cell < ceil(hi / g)`` on x and y)."""
+    a0 = a1 = np.iinfo(np.int64).max
+    b0 = b1 = np.iinfo(np.int64).min
+    n = 0
+    for i in range(lo.shape[0]):
+        if touching[i]:
+            n += 1
+            a0 = min(a0, int(np.floor((min(max(lo[i, 0], zlo[0]), zhi[0]) - zlo[0]) / g)))
+            a1 = min(a1, int(np.floor((min(max(lo[i, 1], zlo[1]), zhi[1]) - zlo[1]) / g)))
+            b0 = max(b0, int(np.ceil((min(max(hi[i, 0], zlo[0]), zhi[0]) - zlo[0]) / g)))
+            b1 = max(b1, int(np.ceil((min(max(hi[i, 1], zlo[1]), zhi[1]) - zlo[1]) / g)))
+    if n == 0 or b0 <= a0 or b1 <= a1:
+        return np.zeros((0, 2))
+    occ = np.zeros((b0 - a0, b1 - a1), dtype=np.bool_)
+    count = 0
+    for i in range(lo.shape[0]):
+        if touching[i]:
+            x0 = int(np.floor((min(max(lo[i, 0], zlo[0]), zhi[0]) - zlo[0]) / g)) - a0
+            y0 = int(np.floor((min(max(lo[i, 1], zlo[1]), zhi[1]) - zlo[1]) / g)) - a1
+            x1 = int(np.ceil((min(max(hi[i, 0], zlo[0]), zhi[0]) - zlo[0]) / g)) - a0
+            y1 = int(np.ceil((min(max(hi[i, 1], zlo[1]), zhi[1]) - zlo[1]) / g)) - a1
+            for x in range(x0, x1):
+                for y in range(y0, y1):
+                    if not occ[x, y]:
+                        occ[x, y] = True
+                        count += 1
+    out = np.empty((count, 2))
+    c = 0
+    for x in range(occ.shape[0]):
+        for y in range(occ.shape[1]):
+            if occ[x, y]:
+                out[c, 0] = zlo[0] + (x + a0 + 0.5) * g
+                out[c, 1] = zlo[1] + (y + a1 + 0.5) * g
+                c += 1
+    return out
 
 
 ARM_LENGTH = 0.75

@@ -241,7 +241,7 @@ def refine_kept(
     pool: Executor | None = None,
     front_hint: float | None = None,
     hint_spheres: ArrayF64 | None = None,
-    extra: ArrayF64 | None = None,
+    extra: Callable[[], ArrayF64] | None = None,
 ) -> Refined:
     """Carve again the kept pieces (``kept`` with their ``flags`` and whether each is
     ``inside`` a shell) that can decide the distance to the robot (see the module
@@ -254,19 +254,21 @@ def refine_kept(
     piece's lower bound lies more than ``BAND`` below it (see the module docstring), the
     bound counted to ``hint_spheres`` (S', 4) when given: the balls of the links the
     distance is measured to (``spheres`` may hold more, e.g. a base fixed to the world,
-    whose balls steer the carving but cannot decide the distance). ``extra`` (E, 8, 3):
+    whose balls steer the carving but cannot decide the distance). ``extra()`` (E, 8, 3):
     sheet boxes of the region besides the pieces' (the sheet under the legs the robot
-    hides), measured with every part and returned with the sheets."""
+    hides), measured with every part and returned with the sheets; asked for only when
+    the region is first measured (it may still be computed on another thread until then)."""
     margin = rules.margin
     reach = REACH_EXTRA + margin  # farthest behind the frontier that is refined
     cross = rules.crossing(kept.vertices)
     cut = np.zeros(len(kept), dtype=bool)  # the rules ran on these pieces already
 
-    more = np.zeros((0, 8, 3)) if extra is None else extra
+    def more() -> ArrayF64:
+        return np.zeros((0, 8, 3)) if extra is None else extra()
 
     def region(part: np.ndarray, best: Any) -> tuple[ArrayF64, Any]:
         v = kept.vertices
-        sheets = np.concatenate([rules.sheets(v[part & ~cut & cross & ((flags & OWN) > 0)]), more])
+        sheets = np.concatenate([rules.sheets(v[part & ~cut & cross & ((flags & OWN) > 0)]), more()])
         return sheets, measure(np.concatenate([v[part & ~cut], sheets]), best)
 
     all_ = np.ones(len(kept), dtype=bool)

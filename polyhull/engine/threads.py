@@ -4,16 +4,18 @@ The engine's parallel stages (each camera's raster and pixels, the two halves of
 run on the calling thread and one pool thread, each taking the next item when it is done:
 the calling thread works instead of waiting, and only one sleeping thread has to wake
 (on this machine a wake-up costs 0.1 to 0.4 ms in the median, several ms at worst).
+Work that a later stage needs only late runs on a pool thread :class:`Beside` the stages
+in between.
 """
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor
-from typing import TypeVar
+from concurrent.futures import Executor, Future, wait
+from typing import Generic, TypeVar
 
-__all__ = ["share"]
+__all__ = ["Beside", "share"]
 
 _I = TypeVar("_I")
 _R = TypeVar("_R")
@@ -49,3 +51,36 @@ def share(pool: Executor | None, fn: Callable[[_I], _R], items: Sequence[_I]) ->
     if error is not None:
         raise error
     return out  # type: ignore[return-value]
+
+
+class Beside(Generic[_R]):
+    """``fn()`` run on one of ``pool``'s threads while the calling thread goes on (at once
+    on the calling thread without a pool): :meth:`result` waits for its value or raises
+    its error. Whoever starts one waits for it (:meth:`wait`) before returning, also on
+    an error, so that nothing runs on after a call returns. Keep at most one running
+    beside a stage that calls :func:`share` (whose second thread must find a free one)."""
+
+    def __init__(self, pool: Executor | None, fn: Callable[[], _R]) -> None:
+        self._future: Future[_R] | None = None
+        self._value: _R | None = None
+        self._error: BaseException | None = None
+        if pool is None:
+            try:
+                self._value = fn()
+            except Exception as exc:  # noqa: BLE001 - raised by result(), as from a thread
+                self._error = exc
+        else:
+            self._future = pool.submit(fn)
+
+    def result(self) -> _R:
+        """Its value (waiting for it), or its error raised."""
+        if self._future is not None:
+            return self._future.result()
+        if self._error is not None:
+            raise self._error
+        return self._value  # type: ignore[return-value]
+
+    def wait(self) -> None:
+        """Wait until it has finished (its error is kept for :meth:`result`)."""
+        if self._future is not None:
+            wait([self._future])
