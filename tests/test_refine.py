@@ -231,6 +231,18 @@ def test_same_rows_against_a_set() -> None:
     check()
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 300), st.integers(1, 7))
+def test_lexicographic_order_is_numpys(seed: int, n: int, k: int) -> None:
+    """The compiled merge sort of ``_same_rows`` orders rows as ``np.lexsort`` of the
+    columns (the first column the primary key), ties kept in their order: on rows with
+    many ties, of any count (not only powers of two)."""
+    from polyhull.engine.refine import _lex_order
+
+    b = np.random.default_rng(seed).integers(0, 3, size=(n, k)).astype(float)
+    np.testing.assert_array_equal(_lex_order(b), np.lexsort(b.T[::-1]))
+
+
 @pytest.mark.parametrize("hint", [0.3, 0.1, 5.0])
 def test_a_hinted_frontier_skips_the_first_measurement_and_changes_nothing_else(hint: float) -> None:
     """With the last cycle's frontier as a hint, the unrefined region is not measured

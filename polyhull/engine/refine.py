@@ -162,9 +162,53 @@ def _same_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     if len(a) == 0 or len(b) == 0:
         return out
     b = np.ascontiguousarray(b, dtype=np.float64)
-    b = b[np.lexsort(b.T[::-1])]
+    b = b[_lex_order(b)]
     _rows_in(np.ascontiguousarray(a, dtype=np.float64), b, out)
     return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _row_below(b, i, j):  # pragma: no cover - compiled
+    """Row ``i`` of ``b`` before row ``j`` (lexicographic order, the first column first)."""
+    for k in range(b.shape[1]):
+        if b[i, k] != b[j, k]:
+            return b[i, k] < b[j, k]
+    return False
+
+
+@nb.njit(cache=True, nogil=True)
+def _lex_order(b):  # pragma: no cover - compiled
+    """The rows of ``b`` (M, K) in lexicographic order (indices; a bottom-up merge sort,
+    stable: ``np.lexsort`` of the columns, last key first, sorts 2,000 rows of 7 columns
+    in seven passes, several times slower)."""
+    n = b.shape[0]
+    order = np.arange(n)
+    tmp = np.empty(n, dtype=np.int64)
+    width = 1
+    while width < n:
+        for lo in range(0, n, 2 * width):
+            mid = min(lo + width, n)
+            hi = min(lo + 2 * width, n)
+            i, j, k = lo, mid, lo
+            while i < mid and j < hi:
+                if _row_below(b, order[j], order[i]):
+                    tmp[k] = order[j]
+                    j += 1
+                else:
+                    tmp[k] = order[i]
+                    i += 1
+                k += 1
+            while i < mid:
+                tmp[k] = order[i]
+                i += 1
+                k += 1
+            while j < hi:
+                tmp[k] = order[j]
+                j += 1
+                k += 1
+        order, tmp = tmp, order
+        width *= 2
+    return order
 
 
 @nb.njit(cache=True, nogil=True)
