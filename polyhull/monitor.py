@@ -179,10 +179,8 @@ class _Memory(NamedTuple):
 
 
 class _History(NamedTuple):
-    """What the distance stage needs late, and what the next cycle keeps of this one
-    (:meth:`Monitor._beside_distance`)."""
+    """What the next cycle keeps of this one (:meth:`Monitor._next_history`)."""
 
-    leg_sheets: ArrayF64  # (L, 8, 3) the sheet boxes under the legs the robot may hide
     kept_lo: ArrayF64  # (K, 3) the kept pieces' boxes
     kept_hi: ArrayF64
     seed_lo: ArrayF64  # (S, 3) the shadow memory's seeds' boxes
@@ -662,24 +660,35 @@ class Monitor:
                 f"coverage lost: only {max(free_share, 0.0):.1%} of the zone is surely seen free "
                 f"(< {self.cell.safety.min_free_share:.1%})"
             )
-        # on a pool thread, beside the distance stage: what it needs only when it first
-        # measures the region, and the next cycle's history
-        beside = Beside(self._pool, lambda: self._beside_distance(allp, judged, ctx, images))
+        # on a pool thread, beside the distance stage: the sheets under the legs the robot
+        # may hide (the stage asks for them when it first measures the region), then, beside
+        # the rest of the stage, the next cycle's history; one job at a time (the stage's
+        # own work shares the pool's other thread)
+        legs = Beside(self._pool, lambda: self._leg_sheets(allp, judged, ctx))
+        history: list[Beside[_History]] = []
+
+        def leg_sheets() -> ArrayF64:
+            out = legs.result()
+            if not history:
+                history.append(Beside(self._pool, lambda: self._next_history(allp, judged, images)))
+            return out
+
         try:
             refined = self._timed(
                 timings,
                 "distance",
-                lambda: self._distance(
-                    pose, carving, allp, len(pieces), len(memory.front), judged, ctx, memory.seeds,
-                    lambda: beside.result().leg_sheets,
-                ),
+                lambda: self._distance(pose, carving, allp, len(pieces), len(memory.front), judged, ctx, memory.seeds, leg_sheets),
             )
         finally:
-            beside.wait()
+            legs.wait()
+            for job in history:
+                job.wait()
         dist = refined.distance
         if dist.distance <= 0.0:
             faults.append(f"contact: the region touches robot link '{dist.link}'")
-        self._remember(t, images, float(dist.distance), beside.result())
+        if not history:  # (the stage never measured the region)
+            history.append(Beside(None, lambda: self._next_history(allp, judged, images)))
+        self._remember(t, images, float(dist.distance), history[0].result())
         # the removals to report (before the latency: the caller waits for them too)
         gap_boxes = images.gaps
         gap_verts = piece_vertices(gap_boxes, self._stack)
@@ -1010,19 +1019,23 @@ class Monitor:
             leg_sheets,
         )
 
-    def _beside_distance(self, allp: PieceSet, result: DynamicResult, ctx: DynamicContext, images: _Images) -> _History:
-        """The sheets under the legs the robot may hide (:func:`hidden_legs`), and the next
-        cycle's history from this cycle's judged pieces: the kept pieces' boxes (not the
-        sheet boxes, which are the static noise layer under them, not an observation) and
-        the shadow memory's seeds. Runs beside the distance stage (reads, writes nothing)."""
+    def _leg_sheets(self, allp: PieceSet, result: DynamicResult, ctx: DynamicContext) -> ArrayF64:
+        """(L, 8, 3) the floor's sheet boxes under the legs the robot may hide
+        (:func:`hidden_legs`) under the judged pieces (reads, writes nothing: it runs beside
+        the distance stage)."""
         hiding = allp.vertices[result.hiding]
         legs = hidden_legs(*vertex_bounds(hiding), np.ones(len(hiding), dtype=bool), ctx)
+        return sheets_under(legs, ctx, horizontal=True)
+
+    def _next_history(self, allp: PieceSet, result: DynamicResult, images: _Images) -> _History:
+        """The next cycle's history from this cycle's judged pieces: the kept pieces' boxes
+        (not the sheet boxes, which are the static noise layer under them, not an
+        observation) and the shadow memory's seeds (reads, writes nothing: it runs beside
+        the distance stage)."""
         seeds = seen_parts(
             allp.boxes[result.seeds], images.free, self._stack, self._binary, [p.invalid for p in images.pixels]
         )
-        return _History(
-            sheets_under(legs, ctx, horizontal=True), *vertex_bounds(allp.vertices[result.keep]), *vertex_bounds(seeds)
-        )
+        return _History(*vertex_bounds(allp.vertices[result.keep]), *vertex_bounds(seeds))
 
     def _remember(self, t: float, images: _Images, distance: float, history: _History) -> None:
         """History for the next cycle: ``history``, the frontier and this cycle's images."""
