@@ -182,3 +182,31 @@ def test_legs_the_robot_hides_keep_the_floors_sheet_under_them() -> None:
     high = hidden_legs(lo + np.array([0.0, 0.0, 0.6]), hi + 0.6, np.array([True]), ctx)  # seen from 1.1 m up
     assert points_in_hexahedra(np.array([[0.5, 0.4, 0.05], [0.5, 0.4, 0.3]]), high).all()
     assert len(hidden_legs(lo, hi, np.array([False]), ctx)) == 0  # not touching M
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(0, 40))
+def test_leg_columns_are_the_union_of_the_footprints(seed: int, n: int) -> None:
+    """The grid cells under the hidden legs' pieces (``_footprint_columns``) are exactly
+    those some touching box's footprint covers (``floor(lo / g) <= cell < ceil(hi / g)``
+    after clipping to the zone), each once: checked against the cells listed box by box,
+    on boxes that reach past the zone, lie on grid lines or are not touching."""
+    from polyhull.engine.dynamic_rules import LEG_GRID, _footprint_columns
+
+    rng = np.random.default_rng(seed)
+    zlo, zhi, g = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.5, 2.0]), LEG_GRID
+    lo = rng.uniform(-1.3, 1.3, (n, 3))
+    snap = rng.random((n, 3)) < 0.3  # on grid lines
+    lo[snap] = np.round(lo[snap] / g) * g
+    hi = lo + rng.uniform(0.0, 0.3, (n, 3)) * (rng.random((n, 1)) < 0.9)
+    touching = rng.random(n) < 0.7
+    want = set()
+    for a, b in zip(lo[touching], hi[touching], strict=True):
+        c0 = np.floor((np.clip(a[:2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(int)
+        c1 = np.ceil((np.clip(b[:2], zlo[:2], zhi[:2]) - zlo[:2]) / g).astype(int)
+        want |= {(x, y) for x in range(c0[0], c1[0]) for y in range(c0[1], c1[1])}
+    xy = _footprint_columns(lo, hi, touching, zlo, zhi, g)
+    got = [tuple(np.round((p - zlo[:2]) / g - 0.5).astype(int)) for p in xy]
+    assert len(got) == len(set(got))  # each cell once
+    assert set(got) == want
+    np.testing.assert_allclose(xy, [zlo[:2] + (np.array(c) + 0.5) * g for c in got] if got else np.zeros((0, 2)))
