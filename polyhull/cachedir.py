@@ -10,7 +10,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["cache_directory", "kernel_sources_digest", "use_numba_cache"]
+__all__ = ["cache_directory", "kernel_cache_directory", "kernel_sources_digest", "kernels_cached", "use_numba_cache"]
 
 _OFF = ("", "0", "off", "none", "false")
 
@@ -61,3 +61,17 @@ def use_numba_cache() -> None:
     config = sys.modules.get("numba.core.config")
     if config is not None:  # numba imported first: it read its settings already
         config.CACHE_DIR = path  # type: ignore[attr-defined]
+
+
+def kernel_cache_directory() -> Path | None:
+    """Where numba caches the compiled kernels (``NUMBA_CACHE_DIR``; None when unset)."""
+    config = sys.modules.get("numba.core.config")
+    path = getattr(config, "CACHE_DIR", None) or os.environ.get("NUMBA_CACHE_DIR")
+    return Path(path) if path else None
+
+
+def kernels_cached() -> bool:
+    """Whether the kernel cache folder holds compiled kernels (numba's ``.nbi`` index
+    files): False on a first run of this version, which compiles them."""
+    path = kernel_cache_directory()
+    return path is not None and path.is_dir() and next(path.rglob("*.nbi"), None) is not None

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import os
 import sys
 
@@ -64,6 +65,12 @@ def _main(argv: list[str] | None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help()
         return 2
+    logger = logging.getLogger("polyhull")
+    handler = _StderrLines(args.command)
+    level = logger.level
+    logger.addHandler(handler)
+    if level == logging.NOTSET or level > logging.INFO:
+        logger.setLevel(logging.INFO)
     try:
         return int(args.func(args))
     except PolyhullError as exc:
@@ -72,6 +79,28 @@ def _main(argv: list[str] | None) -> int:
     except KeyboardInterrupt:
         print(f"polyhull {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+
+
+class _StderrLines(logging.Handler):
+    """The library's log records (INFO and above: a static model built and where it is
+    cached, kernels compiled on a first run, a cache that cannot be written) as lines
+    ``polyhull COMMAND: ...`` on the stderr of the moment (stdout stays the command's
+    output, ``--json`` only JSON)."""
+
+    def __init__(self, command: str) -> None:
+        super().__init__(logging.INFO)
+        self.command = command
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            kind = "warning: " if record.levelno >= logging.WARNING else ""
+            sys.stderr.write(f"polyhull {self.command}: {kind}{record.getMessage()}\n")
+            sys.stderr.flush()
+        except Exception:  # noqa: BLE001 - logging's own contract: report, never raise
+            self.handleError(record)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -32,6 +32,7 @@ it, and faults latch until :meth:`Monitor.reset`.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import time
 from collections.abc import Callable, Mapping
@@ -42,6 +43,7 @@ from typing import Any, NamedTuple, TypeVar
 import manifold3d as m3
 import numpy as np
 
+from .cachedir import kernel_cache_directory, kernels_cached
 from .cell import Cell
 from .distance import (
     STATIC_TOLERANCE,
@@ -122,6 +124,8 @@ from .verdict import (
 __all__ = ["Monitor", "Verdict"]
 
 _T = TypeVar("_T")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -296,6 +300,13 @@ class Monitor:
             PolyhullError: the cell cannot be monitored (bad reference, geometry failure).
         """
         self.cell = cell
+        compiling = not kernels_cached()
+        t_init = time.perf_counter()
+        if compiling:
+            log.info(
+                "first run of this polyhull version: compiling the engine's kernels as they are first used "
+                "(once; cached in %s)", kernel_cache_directory(),
+            )
         if references is None:
             from .raycast import render_reference
 
@@ -324,6 +335,8 @@ class Monitor:
         self.reset()
         if warm_up:
             self._warm_up(references)
+        if compiling:
+            log.info("monitor of cell '%s' ready in %.1f s", cell.name, time.perf_counter() - t_init)
 
     def _prepare_images(self) -> None:
         """What the image stages and the memory read every cycle, built once: the static

@@ -68,3 +68,27 @@ def test_the_kernel_folder_follows_every_kernel_module(tmp_path: Path) -> None:
     assert changed != before
     callee.rename(tmp_path / "b.py")  # the same text elsewhere is another module
     assert kernel_sources_digest(tmp_path) not in (before, changed)
+
+
+_FIRST_RUN = """
+from polyhull.cachedir import kernel_cache_directory, kernels_cached
+before = kernels_cached()
+import numpy as np
+import polyhull.engine.pixels as px
+px.window_range(np.arange(12.0).reshape(3, 4), np.array([[0, 1, 0, 1]]))
+print(before, kernels_cached(), kernel_cache_directory())
+"""
+
+
+def test_a_first_run_is_told_from_a_cached_one(tmp_path: Path) -> None:
+    """``kernels_cached`` (a monitor then says it compiles the kernels, and where they go)
+    is False in an empty cache and True once a kernel was compiled into it."""
+    env = _env(XDG_CACHE_HOME=str(tmp_path))
+    folder = tmp_path / "polyhull" / "numba" / kernel_sources_digest()
+
+    def run() -> list[str]:
+        out = subprocess.run([sys.executable, "-c", _FIRST_RUN], env=env, cwd=ROOT, capture_output=True, text=True, check=True)
+        return out.stdout.strip().splitlines()[-1].split(" ", 2)
+
+    assert run() == ["False", "True", str(folder)]
+    assert run() == ["True", "True", str(folder)]

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import logging
 import math
 import os
 import time
@@ -746,21 +747,39 @@ class StaticModel:
         so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
         ``$XDG_CACHE_HOME/polyhull``, else ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off``
         disables it. Only models that took longer than ``CACHE_AFTER`` seconds are written.
+
+        The ``polyhull`` logger says what happens (the command line shows it on stderr):
+        a build and where its model is cached at INFO, a read from the cache at DEBUG,
+        and at WARNING an entry that could not be read (it is rebuilt) or written (every
+        monitor of the cell then builds it again).
         """
         directory = cache_dir if cache_dir is not None else cache_directory()
         path = None if directory is None else directory / f"static-{model_key(cell, references)}.npz"
         if path is not None and path.is_file():
             try:
-                return cls._load(cell, references, path)
-            except Exception:  # noqa: BLE001 - a damaged entry is rebuilt, never trusted
+                model = cls._load(cell, references, path)
+                log.debug("static model of cell '%s' read from %s", cell.name, path)
+                return model
+            except Exception as exc:  # noqa: BLE001 - a damaged entry is rebuilt, never trusted
+                log.warning("static model cache entry %s could not be read (%s); rebuilding it", path, exc)
                 path.unlink(missing_ok=True)
+        log.info("building the static model of cell '%s'", cell.name)
         t0 = time.perf_counter()
         model = cls.build(cell, references)
-        if path is not None and time.perf_counter() - t0 > CACHE_AFTER:
+        took = time.perf_counter() - t0
+        if path is None:
+            log.info("static model built in %.1f s; not cached (POLYHULL_CACHE_DIR is off)", took)
+        elif took <= CACHE_AFTER:
+            log.info("static model built in %.1f s; not cached (a build of %.0f s or less)", took, CACHE_AFTER)
+        else:
             try:
                 model._save(path)
-            except OSError:
-                pass  # a read-only cache directory only costs the next build
+                log.info("static model built in %.1f s; cached in %s (read by later monitors of this cell)", took, path)
+            except OSError as exc:
+                log.warning(
+                    "static model built in %.1f s but not cached: cannot write %s (%s); every monitor of "
+                    "this cell builds it again (set POLYHULL_CACHE_DIR to a writable folder)", took, path, exc,
+                )
         return model
 
     def _save(self, path: Path) -> None:
@@ -956,6 +975,8 @@ def _hull_contains(cameras: Sequence[StaticCamera], points_world: ArrayF64, k_of
         count += (z > s.camera.near) & (z < surf)
     return count < k_of_n
 
+
+log = logging.getLogger(__name__)
 
 CACHE_AFTER = 2.0
 """Static models that take longer than this [s] to build are cached on disk."""
