@@ -10,7 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from polyhull.cachedir import kernel_sources_digest
+from polyhull.cachedir import imported_sources_digest, kernel_sources_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -92,3 +92,52 @@ def test_a_first_run_is_told_from_a_cached_one(tmp_path: Path) -> None:
 
     assert run() == ["False", "True", str(folder)]
     assert run() == ["True", "True", str(folder)]
+
+
+def test_the_static_models_key_follows_the_modules_it_imports(tmp_path: Path) -> None:
+    """The static model's cache key holds the digest of its module and of every module of
+    the package it imports, transitively (relative or absolute imports, at the top or
+    inside a function, on several lines): an edit of any of them gives a new key without a
+    version bump; an edit of a module it does not import does not."""
+    root = tmp_path / "pkg"
+    (root / "sub").mkdir(parents=True)
+    files = {
+        "__init__.py": "from .unused import x\n",
+        "main.py": (
+            '"""Computes things.\n\nfrom the camera import the depth (prose, not code)\n"""\n'
+            "import os\nfrom .helper import (\n    f,\n    g,\n)\n\n\n"
+            "def late():\n    from .sub.deep import h\n    import pkg.absolute\n    return h\n"
+        ),
+        "helper.py": "from . import leaf\n",
+        "leaf.py": "LEAF = 1\n",
+        "sub/__init__.py": "",
+        "sub/deep.py": "H = 1\n",
+        "absolute.py": "A = 1\n",
+        "unused.py": "x = 1\n",
+    }
+    for name, text in files.items():
+        (root / name).write_text(text)
+
+    def digest() -> str:
+        imported_sources_digest.cache_clear()
+        return imported_sources_digest("pkg.main", root)
+
+    seen = {digest()}
+    for name in ("main.py", "helper.py", "leaf.py", "sub/deep.py", "absolute.py"):
+        (root / name).write_text((root / name).read_text() + "# edited\n")
+        d = digest()
+        assert d not in seen, name
+        seen.add(d)
+    last = digest()
+    (root / "unused.py").write_text("x = 2\n")  # the package's __init__ imports it; main does not
+    assert digest() == last
+    imported_sources_digest.cache_clear()
+
+
+def test_the_static_model_key_holds_the_code_digest(monkeypatch, small_cell, small_sim) -> None:  # noqa: ANN001
+    import polyhull.engine.static_model as static_module
+
+    refs = small_sim.reference()
+    key = static_module.model_key(small_cell, refs)
+    monkeypatch.setattr(static_module, "imported_sources_digest", lambda module: "another build")
+    assert static_module.model_key(small_cell, refs) != key

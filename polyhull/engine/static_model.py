@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.metadata
 import logging
 import math
 import os
@@ -54,7 +55,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..background import TaughtCamera
-from ..cachedir import cache_directory
+from ..cachedir import cache_directory, imported_sources_digest
 from ..camera import Camera
 from ..cell import Cell, Obstacle
 from ..errors import FrameError
@@ -743,8 +744,10 @@ class StaticModel:
 
         The cache file is named by a digest of everything the model depends on: the
         cell's cameras, zone, obstacles (their meshes) and parameters, the reference
-        images, the taught background, and the cache format; any change gives a new name,
-        so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
+        images, the taught background, the cache format, polyhull's version, the sources
+        of the modules that build it (this one and every module of the package it imports,
+        :func:`polyhull.cachedir.imported_sources_digest`) and manifold3d's version; any
+        change gives a new name, so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
         ``$XDG_CACHE_HOME/polyhull``, else ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off``
         disables it. Only models that took longer than ``CACHE_AFTER`` seconds are written.
 
@@ -991,6 +994,10 @@ def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
     from .. import __version__
 
     h.update(__version__.encode())
+    # the code that builds the model (this module and what it imports, so an edit needs no
+    # version bump) and the geometry kernel's version
+    h.update(imported_sources_digest(__name__).encode())
+    h.update(_distribution_version("manifold3d").encode())
     h.update(repr((cell.zone, cell.reconstruction, cell.plausibility)).encode())
     for cam in cell.cameras:
         h.update(
@@ -1005,6 +1012,13 @@ def model_key(cell: Cell, references: dict[str, np.ndarray]) -> str:
         h.update(np.ascontiguousarray(o.mesh.vertices, dtype=np.float64).tobytes())
         h.update(np.ascontiguousarray(o.mesh.faces, dtype=np.int64).tobytes())
     return h.hexdigest()
+
+
+def _distribution_version(name: str) -> str:
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def _mesh(m: m3.Manifold) -> tuple[np.ndarray, np.ndarray]:
