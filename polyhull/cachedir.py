@@ -38,11 +38,15 @@ def kernel_sources_digest(root: Path | None = None) -> str:
     """A digest of every module under ``root`` (the package when None) that defines
     compiled kernels (its path there and its text): the name of their cache folder."""
     root = Path(__file__).resolve().parent if root is None else root
+    texts = {path: path.read_bytes() for path in root.rglob("*.py")}
+    return _sources_digest(root, {path: text for path, text in texts.items() if b"njit" in text})
+
+
+def _sources_digest(root: Path, texts: dict[Path, bytes]) -> str:
+    """A digest of modules by their path under ``root`` and their text."""
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        text = path.read_bytes()
-        if b"njit" in text:
-            h.update(path.relative_to(root).as_posix().encode() + b"\0" + text + b"\0")
+    for path in sorted(texts):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + texts[path] + b"\0")
     return h.hexdigest()[:16]
 
 
@@ -86,10 +90,7 @@ def imported_sources_digest(module: str, root: Path | None = None) -> str:
                 found = _module_file(root, parts)
                 if found is not None:
                     todo.append(found)
-    h = hashlib.sha256()
-    for path in sorted(texts):
-        h.update(path.relative_to(root).as_posix().encode() + b"\0" + texts[path] + b"\0")
-    return h.hexdigest()[:16]
+    return _sources_digest(root, texts)
 
 
 def _imports(text: bytes, package: str) -> list[ast.stmt]:

@@ -747,9 +747,10 @@ class StaticModel:
         images, the taught background, the cache format, polyhull's version, the sources
         of the modules that build it (this one and every module of the package it imports,
         :func:`polyhull.cachedir.imported_sources_digest`) and manifold3d's version; any
-        change gives a new name, so a stale entry can never be read. The directory is ``$POLYHULL_CACHE_DIR``, else
-        ``$XDG_CACHE_HOME/polyhull``, else ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off``
-        disables it. Only models that took longer than ``CACHE_AFTER`` seconds are written.
+        change gives a new name, so a stale entry can never be read. The directory is
+        ``$POLYHULL_CACHE_DIR``, else ``$XDG_CACHE_HOME/polyhull``, else
+        ``~/.cache/polyhull``; ``POLYHULL_CACHE_DIR=off`` disables it. Only models that
+        took longer than ``CACHE_AFTER`` seconds are written.
 
         The ``polyhull`` logger says what happens (the command line shows it on stderr):
         a build and where its model is cached at INFO, a read from the cache at DEBUG,
