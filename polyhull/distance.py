@@ -21,7 +21,7 @@ as contact.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import NamedTuple
 
 import fcl
@@ -29,6 +29,7 @@ import manifold3d as m3
 import numba as nb
 import numpy as np
 import trimesh
+from scipy.spatial import ConvexHull
 
 from .errors import GeometryError
 from .typed import ArrayF64
@@ -274,11 +275,21 @@ def winding_numbers(points: ArrayF64, vertices: ArrayF64, triangles: np.ndarray)
 class RobotDistanceModel:
     """FCL models of the robot links, for distance queries at changing joint positions."""
 
-    def __init__(self, link_geometry: Mapping[str, trimesh.Trimesh]) -> None:
-        """Build one BVH per link.
+    def __init__(
+        self,
+        link_geometry: Mapping[str, trimesh.Trimesh],
+        link_pieces: Mapping[str, Sequence[ArrayF64]] | None = None,
+    ) -> None:
+        """Build one BVH per link, and the face planes that bound the dynamic pieces'
+        distances before any BVH is built for them.
 
         Args:
             link_geometry: Collision mesh per link in the link frame.
+            link_pieces: Vertices (K, 3) of convex pieces per link (link frame) whose
+                union holds the link's mesh, e.g. :meth:`polyhull.robot.Robot.link_convex_pieces`:
+                their face planes bound the distance more tightly than the mesh's hull.
+                A link without them, or whose mesh has a vertex outside them, is bounded by
+                its mesh's convex hull.
         """
         self._objects: dict[str, fcl.CollisionObject] = {}
         self._spheres: dict[str, tuple[ArrayF64, float]] = {}
@@ -297,6 +308,9 @@ class RobotDistanceModel:
             # else the vertex nearest to it, which is on the link).
             inner = np.asarray(mesh.centroid, dtype=np.float64)
             self._inner[name] = inner
+        self._planes = _link_planes(
+            {n: link_geometry[n] for n in self._objects}, {} if link_pieces is None else link_pieces
+        )
 
     @property
     def link_names(self) -> tuple[str, ...]:
@@ -447,6 +461,7 @@ class RobotDistanceModel:
                     break
                 # the batch's bounds made tighter (costlier: only for the pieces examined)
                 tight = np.maximum(lower[:, batch], _frame_box_gaps(pieces[batch], poses, boxes))
+                _plane_gaps(pieces[batch], poses, *self._planes, tight, bound)
                 keep = tight.min(axis=0) < bound
                 batch, tight = batch[keep], tight[:, keep]
                 if len(batch) == 0:
@@ -527,6 +542,89 @@ def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cove
             upper2 = min(upper2, dx * dx + dy * dy + dz * dz)
     upper = np.sqrt(upper2)
     return lower, near, upper
+
+
+PLANE_SLACK = 1e-9
+"""[m] taken off every face plane's offset bound: the planes' rounding (normals of unit
+length to about 1e-16, coordinates of a few metres) is far below it."""
+
+
+def _convex_planes(vertices: ArrayF64) -> ArrayF64:
+    """(F, 4) outward unit normals and offsets ``n . x <= d`` of the faces of a convex
+    piece's hull (coplanar triangles give one plane); ``d`` is the greatest ``n . v`` over
+    the piece's vertices, so every vertex is on the inner side."""
+    hull = ConvexHull(np.asarray(vertices, dtype=np.float64))
+    normals = hull.equations[:, :3] / np.linalg.norm(hull.equations[:, :3], axis=1)[:, None]
+    normals = np.unique(np.round(normals, 12), axis=0)
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    d = (normals @ np.asarray(vertices, dtype=np.float64).T).max(axis=1)
+    return np.column_stack([normals, d + PLANE_SLACK])
+
+
+def _link_planes(
+    meshes: Mapping[str, trimesh.Trimesh], pieces: Mapping[str, Sequence[ArrayF64]]
+) -> tuple[ArrayF64, np.ndarray, np.ndarray]:
+    """The face planes of each link's convex pieces, for :func:`_plane_gaps` (links in the
+    order of ``meshes``): the given pieces where every vertex of the link's mesh lies in
+    one of them, else the mesh's hull."""
+    planes: list[ArrayF64] = []
+    piece_start = [0]
+    link_start = [0]
+    for name, mesh in meshes.items():
+        given = [_convex_planes(p) for p in pieces.get(name, ())]
+        v = np.asarray(mesh.vertices, dtype=np.float64)
+        held = bool(given) and bool(
+            np.any([(v @ p[:, :3].T <= p[:, 3]).all(axis=1) for p in given], axis=0).all()
+        )
+        for p in given if held else [_convex_planes(v)]:
+            planes.append(p)
+            piece_start.append(piece_start[-1] + len(p))
+        link_start.append(len(piece_start) - 1)
+    return (
+        np.ascontiguousarray(np.concatenate(planes) if planes else np.zeros((0, 4))),
+        np.asarray(piece_start, dtype=np.int64),
+        np.asarray(link_start, dtype=np.int64),
+    )
+
+
+@nb.njit(cache=True, nogil=True)
+def _plane_gaps(pieces, poses, planes, piece_planes, link_pieces, tight, bound):  # pragma: no cover - compiled
+    """Raise ``tight`` (L, N), lower bounds of each hexahedron's (N, 8, 3) distance to each
+    link, to the separating-plane bound where it is below ``bound``: a link's convex piece
+    lies on the inner side of each of its face planes (``planes`` (M, 4): unit outward
+    normal and offset ``n . x <= d`` in the link frame, poses (L, 3, 4)), so a point ``x``
+    is at least ``n . x - d`` from it, and the hexahedron, the hull of its vertices, at least
+    the least of that over its vertices; the best plane of each piece, the nearest piece of
+    the link (``piece_planes`` (P + 1,) each piece's first plane, ``link_pieces`` (L + 1,)
+    each link's first piece)."""
+    L = poses.shape[0]
+    n = pieces.shape[0]
+    x = np.empty((8, 3))
+    for j in range(L):
+        for i in range(n):
+            if tight[j, i] >= bound:
+                continue
+            for k in range(8):  # the vertices in the link's frame
+                for a in range(3):
+                    x[k, a] = (
+                        poses[j, 0, a] * (pieces[i, k, 0] - poses[j, 0, 3])
+                        + poses[j, 1, a] * (pieces[i, k, 1] - poses[j, 1, 3])
+                        + poses[j, 2, a] * (pieces[i, k, 2] - poses[j, 2, 3])
+                    )
+            link = np.inf
+            for p in range(link_pieces[j], link_pieces[j + 1]):
+                best = 0.0
+                for f in range(piece_planes[p], piece_planes[p + 1]):
+                    g = np.inf
+                    for k in range(8):
+                        g = min(g, planes[f, 0] * x[k, 0] + planes[f, 1] * x[k, 1] + planes[f, 2] * x[k, 2] - planes[f, 3])
+                    best = max(best, g)
+                link = min(link, best)
+                if link <= tight[j, i]:
+                    break
+            if link > tight[j, i]:
+                tight[j, i] = link
+    return tight
 
 
 @nb.njit(cache=True, nogil=True)

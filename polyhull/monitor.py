@@ -404,7 +404,8 @@ class Monitor:
             self._padded: PaddedPieces | None = self._robot_pieces.padded
             geometry = robot.link_geometry()
             self._distance_model: RobotDistanceModel | None = RobotDistanceModel(
-                {name: mesh for name, mesh in geometry.items() if name in self._robot_pieces.moving}
+                {name: mesh for name, mesh in geometry.items() if name in self._robot_pieces.moving},
+                robot.link_convex_pieces(),
             )
             self._static_distance: StaticDistance | None = StaticDistance(
                 self._distance_model, ChunkedMesh.of_manifold(self.static.region, tolerance=STATIC_TOLERANCE), self._static_contains
