@@ -80,6 +80,11 @@ def test_empty_region_is_inf(robot: Robot, model: RobotDistanceModel) -> None:
     assert result.link is None and result.points is None
 
 
+def _joint_range(robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The joints' limits, -pi to pi where a joint has none (to draw q from)."""
+    return np.where(np.isfinite(robot.lower), robot.lower, -np.pi), np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+
+
 def _hexahedra(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     from polyhull.engine.dynamic_rules import box_vertices
 
@@ -168,8 +173,7 @@ def test_static_distance_reuse_matches_fcl(robot: Robot, model: RobotDistanceMod
     # small chunks: a link meets several, and the chunked minimum must be the whole one's
     chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
     assert chunks is not None and len(chunks) > 4
-    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo, hi = _joint_range(robot)
 
     @settings(max_examples=15, deadline=None)
     @given(st.integers(0, 2**31 - 1), st.floats(0.005, 0.3))
@@ -214,8 +218,7 @@ def test_a_link_sought_below_a_bound_gets_its_distance_or_a_lower_bound(robot: R
     obj = manifold_to_fcl(region)
     chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
     assert chunks is not None
-    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo, hi = _joint_range(robot)
     seen = {"exact": 0, "bound": 0}
 
     @settings(max_examples=40, deadline=None)
@@ -251,8 +254,7 @@ def test_each_chunks_bound_is_below_its_fcl_distance(robot: Robot, model: RobotD
     region = _box((1.6, 0.4, 1.0), (0.4, 0.6, 1.4)) + _box((-0.2, 1.7, 0.4), (0.5, 0.3, 0.8))
     chunks = ChunkedMesh.of_manifold(region, chunk=0.2)
     assert chunks is not None
-    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo, hi = _joint_range(robot)
     rng = np.random.default_rng(3)
     for _ in range(10):
         T = robot.link_transforms(rng.uniform(lo, hi))
@@ -300,8 +302,7 @@ def test_pruned_piece_distance_equals_all_pieces(robot: Robot, model: RobotDista
 
     from polyhull.distance import _bvh, hexahedra_triangles
 
-    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo_q, hi_q = _joint_range(robot)
 
     @settings(max_examples=20, deadline=None)
     @given(st.integers(0, 2**31 - 1), st.integers(9, 200))
@@ -336,8 +337,7 @@ def test_frame_box_gaps_never_exceed_the_distance(robot: Robot, model: RobotDist
 
     from polyhull.distance import _bvh, _frame_box_gaps, _piece_bounds, hexahedra_triangles
 
-    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo_q, hi_q = _joint_range(robot)
     names = model.link_names
     gains = []
 
@@ -401,8 +401,7 @@ def test_plane_gaps_never_exceed_the_distance_and_are_tight_at_the_surface(robot
     hull_model = RobotDistanceModel(robot.link_geometry(), shrunk)  # do not hold: the hulls
     assert len(hull_model._planes[1]) - 1 == len(hull_model.link_names)  # one piece a link
     assert len(pieces_model._planes[1]) - 1 > len(pieces_model.link_names)
-    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo_q, hi_q = _joint_range(robot)
     names = pieces_model.link_names
     ratios: list[float] = []
     box_ratios: list[float] = []
@@ -451,8 +450,7 @@ def test_pruned_distance_among_pieces_hugging_the_robot_equals_all_pieces(robot:
         RobotDistanceModel(robot.link_geometry(), robot.link_convex_pieces()),
         RobotDistanceModel(robot.link_geometry()),
     )
-    lo_q = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi_q = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo_q, hi_q = _joint_range(robot)
 
     @settings(max_examples=10, deadline=None)
     @given(st.integers(0, 2**31 - 1), st.integers(20, 400))
@@ -491,8 +489,7 @@ def test_static_distance_on_a_simplified_mesh_is_never_farther(robot: Robot, mod
     chunks = ChunkedMesh.of_manifold(region, chunk=0.2, tolerance=tol)
     assert chunks is not None and chunks.tolerance == tol
     assert region.simplify(tol).num_tri() < region.num_tri() / 2
-    lo = np.where(np.isfinite(robot.lower), robot.lower, -np.pi)
-    hi = np.where(np.isfinite(robot.upper), robot.upper, np.pi)
+    lo, hi = _joint_range(robot)
 
     @settings(max_examples=15)
     @given(st.integers(0, 2**31 - 1))
