@@ -29,7 +29,7 @@ import manifold3d as m3
 import numba as nb
 import numpy as np
 import trimesh
-from scipy.spatial import ConvexHull
+from scipy.spatial import ConvexHull, QhullError
 
 from .errors import GeometryError
 from .typed import ArrayF64
@@ -552,12 +552,17 @@ length to about 1e-16, coordinates of a few metres) is far below it."""
 def _convex_planes(vertices: ArrayF64) -> ArrayF64:
     """(F, 4) outward unit normals and offsets ``n . x <= d`` of the faces of a convex
     piece's hull (coplanar triangles give one plane); ``d`` is the greatest ``n . v`` over
-    the piece's vertices, so every vertex is on the inner side."""
-    hull = ConvexHull(np.asarray(vertices, dtype=np.float64))
-    normals = hull.equations[:, :3] / np.linalg.norm(hull.equations[:, :3], axis=1)[:, None]
-    normals = np.unique(np.round(normals, 12), axis=0)
-    normals /= np.linalg.norm(normals, axis=1)[:, None]
-    d = (normals @ np.asarray(vertices, dtype=np.float64).T).max(axis=1)
+    the piece's vertices, so every vertex is on the inner side. A piece without a hull
+    (flat, or too few vertices) is bounded by its box's six planes."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    try:
+        hull = ConvexHull(v)
+        normals = hull.equations[:, :3] / np.linalg.norm(hull.equations[:, :3], axis=1)[:, None]
+        normals = np.unique(np.round(normals, 12), axis=0)
+        normals /= np.linalg.norm(normals, axis=1)[:, None]
+    except (QhullError, ValueError):
+        normals = np.concatenate([np.eye(3), -np.eye(3)])
+    d = (normals @ v.T).max(axis=1)
     return np.column_stack([normals, d + PLANE_SLACK])
 
 
@@ -601,6 +606,8 @@ def _plane_gaps(pieces, poses, planes, piece_planes, link_pieces, tight, bound):
     n = pieces.shape[0]
     x = np.empty((8, 3))
     for j in range(L):
+        if link_pieces[j] == link_pieces[j + 1]:
+            continue  # no piece: no bound
         for i in range(n):
             if tight[j, i] >= bound:
                 continue

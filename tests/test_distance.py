@@ -436,6 +436,21 @@ def test_plane_gaps_never_exceed_the_distance_and_are_tight_at_the_surface(robot
     assert (plane >= 0.9).mean() > (box >= 0.9).mean() + 0.2
 
 
+def test_a_flat_piece_is_bounded_by_its_box() -> None:
+    """A convex piece without a hull (three points, flat) is bounded by its box's planes:
+    every vertex inside them, and a piece beyond them bounded by its gap to the box."""
+    from polyhull.distance import _convex_planes, _plane_gaps
+
+    triangle = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    planes = _convex_planes(triangle)
+    assert len(planes) == 6
+    assert (triangle @ planes[:, :3].T <= planes[:, 3]).all()
+    piece = _hexahedra(np.array([[0.2, 0.2, 0.3]]), np.array([[0.3, 0.3, 0.4]]))
+    pose = np.eye(4)[None, :3, :]
+    gap = _plane_gaps(piece, pose, planes, np.array([0, 6]), np.array([0, 1]), np.zeros((1, 1)), np.inf)
+    assert gap[0, 0] == pytest.approx(0.3, abs=1e-8)  # above the plane z = 0: 0.3 m
+
+
 def test_pruned_distance_among_pieces_hugging_the_robot_equals_all_pieces(robot: Robot) -> None:
     """Hundreds of pieces just off the links and a few farther: the pruned, batched
     measurement gives FCL's distance to all of them, with and without the links' convex
