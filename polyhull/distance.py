@@ -545,7 +545,7 @@ def _piece_bounds(pieces, sph_c, sph_r, poses, boxes, inner):  # pragma: no cove
 
 
 PLANE_SLACK = 1e-9
-"""[m] taken off every face plane's offset bound: the planes' rounding (normals of unit
+"""[m] added to every face plane's offset (the bound only loosens): the planes' rounding (normals of unit
 length to about 1e-16, coordinates of a few metres) is far below it."""
 
 
@@ -556,9 +556,8 @@ def _convex_planes(vertices: ArrayF64) -> ArrayF64:
     (flat, or too few vertices) is bounded by its box's six planes."""
     v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     try:
-        hull = ConvexHull(v)
-        normals = hull.equations[:, :3] / np.linalg.norm(hull.equations[:, :3], axis=1)[:, None]
-        normals = np.unique(np.round(normals, 12), axis=0)
+        # qhull's unit normals, one per plane (a face's triangles agree to rounding)
+        normals = np.unique(np.round(ConvexHull(v).equations[:, :3], 12), axis=0)
         normals /= np.linalg.norm(normals, axis=1)[:, None]
     except (QhullError, ValueError):
         normals = np.concatenate([np.eye(3), -np.eye(3)])
