@@ -330,6 +330,8 @@ class Monitor:
         # Pieces grow by at most padding * sqrt(3) (cube corners): that is the margin added
         # to the protective separation distance.
         self._margin = self._padding * math.sqrt(3.0)
+        # refinement even where it cannot change the distance (the warm-up's cycles)
+        self._always_refine = False
         self._prepare_images()
         self._prepare_robot(robot)
         self.reset()
@@ -426,8 +428,14 @@ class Monitor:
             q = np.asarray(self.cell.robot.q, dtype=np.float64)
             points = np.array([T[:3, 3] for T in self.robot.link_transforms(q).values()])
         dt = 0.1
-        for k, frames in enumerate(warmup_frames(self.cell, references, [0.0, dt], points)):
-            self.step(frames, q, stamp=k * dt)
+        # refined even where the static region is nearer than the box (a cell whose static
+        # region comes close to the robot): its kernels must load now
+        self._always_refine = True
+        try:
+            for k, frames in enumerate(warmup_frames(self.cell, references, [0.0, dt], points)):
+                self.step(frames, q, stamp=k * dt)
+        finally:
+            self._always_refine = False
         self.reset()
 
     # -- state -----------------------------------------------------------------------
@@ -1030,7 +1038,7 @@ class Monitor:
             np.zeros((0, 4)) if no_refine else spheres, self._carve.alpha,
             functools.partial(carving.recarve, seeds=seeds), measure, self._pool,
             carving.front if carving.front_known else None, spheres[measured] if len(spheres) else None,
-            leg_sheets,
+            leg_sheets, leave_out=not self._always_refine,
         )
 
     def _leg_sheets(self, allp: PieceSet, result: DynamicResult, ctx: DynamicContext) -> ArrayF64:

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from polyhull.cell import Cell
 from polyhull.distance import DistanceResult
 from polyhull.engine.dynamic_rules import box_vertices
 from polyhull.engine.pieces import PieceSet
@@ -24,6 +26,7 @@ from polyhull.engine.refine import (
     distance_lower_bounds,
     refine_kept,
 )
+from polyhull.monitor import Monitor
 
 
 def _boxes(rows: list[tuple[float, ...]]) -> PieceSet:
@@ -88,6 +91,13 @@ def _measure(robot_x: float):  # noqa: ANN202
         return DistanceResult(d, None, "link" if math.isfinite(d) else None)
 
     return measure, calls
+
+
+def _passes(calls: list[int]) -> int:
+    """The measurements of the region among ``measure``'s calls (a call without vertices
+    seeks the parts refinement never changes: here the static region, which the stand-in
+    has none of)."""
+    return sum(1 for n in calls if n)
 
 
 def test_a_false_crossing_loses_its_sheet_and_the_feet_it_kept() -> None:
@@ -271,7 +281,7 @@ def test_a_hinted_frontier_skips_the_first_measurement_and_changes_nothing_else(
         out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, recarve, measure, front_hint=front_hint)
         region = np.concatenate([out.pieces.vertices, out.sheets])
         assert out.distance.distance == measure(region, None).distance
-        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, len(calls) - 1))
+        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, _passes(calls) - 1))
     (ids, cut, d, n), (h_ids, h_cut, h_d, h_n) = runs
     assert (h_ids, h_cut, h_d) == (ids, cut, d)
     hinted = float(distance_lower_bounds(kept.vertices, spheres).min()) >= hint - BAND
@@ -307,8 +317,110 @@ def test_the_hint_counts_only_the_links_the_distance_is_measured_to() -> None:
     for kwargs in ({}, {"front_hint": hint}, {"front_hint": hint, "hint_spheres": link}):
         measure, calls = _measure(robot_x=1.6)
         out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, recarve, measure, **kwargs)
-        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, len(calls)))
+        runs.append((sorted(out.pieces.boxes[:, 0].tolist()), sorted(out.cut.boxes[:, 0].tolist()), out.distance.distance, _passes(calls)))
     (ids, cut, d, n), (r_ids, r_cut, r_d, r_n), (h_ids, h_cut, h_d, h_n) = runs
     assert (r_ids, r_cut, r_d, r_n) == (ids, cut, d, n)  # the base's ball refuses the hint
     assert (h_ids, h_cut, h_d) == (ids, cut, d)
     assert h_n == n - 1
+
+
+def _measure_with(robot_x: float, static: float, extra: np.ndarray | None = None):  # noqa: ANN202
+    """:func:`_measure` of a region that also holds a static part ``static`` [m] from the
+    robot (added to every result, as the monitor's ``measure`` adds the static region's),
+    and ``extra()`` boxes."""
+    inner, calls = _measure(robot_x)
+
+    def measure(vertices: np.ndarray, best: DistanceResult | None) -> DistanceResult:
+        res = inner(vertices, best)
+        return DistanceResult(static, None, "static") if static < res.distance else res
+
+    return measure, calls, (lambda: np.zeros((0, 8, 3)) if extra is None else extra)
+
+
+def _scene() -> tuple[PieceSet, np.ndarray, np.ndarray]:
+    """The scene of the false crossing: unrefined, A's sheet (the margin around it) is 0.2 m
+    from the robot (the plane x = 1.6), B 0.3 m; refined, only C stays, 4.5 m from it, with
+    its sheet 0.3 m nearer."""
+    kept = _boxes(
+        [
+            (1, 1.0, 0.0, 0.20, 1.1, 0.1, 0.35),  # A: seems to cross the sheet's top
+            (2, 1.2, 0.0, 0.00, 1.3, 0.1, 0.20),  # B: inside the sheet, kept only by A
+            (3, -3.0, 0.0, 0.0, -2.9, 0.1, 1.8),  # C: a person standing far away
+        ]
+    )
+    return kept, np.array([OWN, OWN, OWN], dtype=np.int8), _rules(0.3).in_shells(kept.vertices)
+
+
+def _recarve(seen: list[float]):  # noqa: ANN202
+    children = {1: [(4, 1.0, 0.0, 0.20, 1.1, 0.1, 0.28)]}  # A's part inside the sheet
+
+    def recarve(boxes: np.ndarray, flags: int, offset: float, alpha: float, size_min: float) -> PieceSet:
+        seen.extend(boxes[:, 0].tolist())
+        return _boxes([r for b in boxes for r in children.get(int(b[0]), [tuple(b)])])
+
+    return recarve
+
+
+@pytest.mark.parametrize("static", [0.1, 0.25, 1.0, math.inf])
+@pytest.mark.parametrize("hint", [None, 0.0, 1.0])
+def test_refinement_is_left_out_only_when_it_cannot_change_the_distance(static: float, hint: float | None) -> None:
+    """The static region (a part of the region that refinement never changes) nearer than
+    every piece, or as near as the nearest: refinement is left out (no piece carved, the
+    pieces returned as they are) and the distance is the static region's, which is also
+    the refined region's. Farther than a piece that refinement removes: the pieces are
+    refined as without a static region, and the distance is the nearer of the static
+    region and the refined pieces."""
+    kept, flags, inside = _scene()
+    spheres = np.array([[1.8, 0.05, 0.2, 0.2]])
+    seen: list[float] = []
+    measure, _, extra = _measure_with(1.6, static)
+    out = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, _recarve(seen), measure, front_hint=hint, extra=extra)
+    # the same scene refined in full, without the static region
+    plain, _ = _measure(1.6)
+    full = refine_kept(kept, flags, inside, _rules(0.3), spheres, 0.25, _recarve([]), plain)
+    assert full.rounds == 1 and full.distance.distance > 1.0  # refinement removes A and B
+    assert out.distance.distance == min(static, full.distance.distance)
+    if static < 1.6 - 1.4:  # nearer than A's sheet, the nearest part of the pieces
+        assert (out.rounds, seen) == (0, [])
+        assert sorted(out.pieces.boxes[:, 0].tolist()) == [1.0, 2.0, 3.0] and len(out.cut) == 0
+        assert out.distance.link == "static"
+    else:
+        assert out.rounds == 1 and sorted(seen) == [1.0, 2.0]
+        assert sorted(out.pieces.boxes[:, 0].tolist()) == [3.0]
+
+
+def test_the_sheet_under_hidden_legs_decides_and_refinement_is_left_out() -> None:
+    """``extra()`` boxes (the sheet under legs the robot may hide) nearer than every piece:
+    refinement is left out, the distance is theirs and they are returned with the sheets."""
+    kept, flags, inside = _scene()
+    legs = box_vertices(np.array([[1.35, 0.0, 0.0]]), np.array([[1.45, 0.1, 0.1]]))  # 0.15 m from the robot
+    seen: list[float] = []
+    measure, _, extra = _measure_with(1.6, math.inf, legs)
+    out = refine_kept(kept, flags, inside, _rules(0.3), np.array([[1.8, 0.05, 0.2, 0.2]]), 0.25, _recarve(seen), measure, extra=extra)
+    assert (out.rounds, seen) == (0, [])
+    assert math.isclose(out.distance.distance, 1.6 - 1.45)
+    assert any(np.array_equal(s, legs[0]) for s in out.sheets)
+
+
+def test_the_monitor_reports_the_refined_distance_when_refinement_is_left_out(small_cell: Cell, fresh_monitor: Monitor) -> None:
+    """Over the small cell's recorded walk (its static region comes within centimetres of
+    the arm, and the person walks up to it), the distances are those of a monitor that
+    always refines, in every cycle, and refinement is left out in some cycles and not in
+    others."""
+    from polyhull.frames import load_frames
+
+    files = sorted((Path(__file__).resolve().parents[1] / "fixtures" / "frames").glob("small_walk_*.npz"))
+    loaded = [load_frames(f) for f in files]
+    runs = []
+    try:
+        for always in (False, True):
+            fresh_monitor._always_refine = always  # (the warm-up's mode: always refined)
+            fresh_monitor.reset()
+            runs.append([fresh_monitor.step(f.frames, f.q, stamp=f.stamp) for f in loaded])
+    finally:
+        fresh_monitor._always_refine = False
+    left_out = [v.counts["refine_rounds"] == 0 and v.counts["kept_pieces"] > 0 for v in runs[0]]
+    assert any(left_out) and not all(left_out)
+    assert all(v.counts["refine_rounds"] == 1 for v, out in zip(runs[1], left_out, strict=True) if out)
+    assert [v.min_distance for v in runs[0]] == [v.min_distance for v in runs[1]]
+    assert [v.closest_link for v in runs[0]] == [v.closest_link for v in runs[1]]
