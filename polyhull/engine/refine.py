@@ -351,10 +351,13 @@ def refine_kept(
     def more() -> ArrayF64:
         return np.zeros((0, 8, 3)) if extra is None else extra()
 
+    def own_sheets(part: np.ndarray) -> ArrayF64:
+        # the sheets under the pieces of ``part`` that stand on a surface
+        return rules.sheets(kept.vertices[part & ~cut & cross & ((flags & OWN) > 0)])
+
     def region(part: np.ndarray, best: Any) -> tuple[ArrayF64, Any]:
-        v = kept.vertices
-        sheets = np.concatenate([rules.sheets(v[part & ~cut & cross & ((flags & OWN) > 0)]), more()])
-        return sheets, measure(np.concatenate([v[part & ~cut], sheets]), best)
+        sheets = np.concatenate([own_sheets(part), more()])
+        return sheets, measure(np.concatenate([kept.vertices[part & ~cut], sheets]), best)
 
     all_ = np.ones(len(kept), dtype=bool)
     rounds = 0
@@ -371,7 +374,7 @@ def refine_kept(
     if sure is not None:
         # when nothing of the pieces and their sheets is nearer, the distance is theirs, and
         # refinement (which only removes space) cannot change it: it is left out
-        sheets = rules.sheets(kept.vertices[cross & ((flags & OWN) > 0)])
+        sheets = own_sheets(all_)
         bounds = distance_lower_bounds(sheets, spheres if hint_spheres is None else hint_spheres)
         sheets = np.concatenate([sheets, more()])
         if float(sure.distance) <= min(float(measured_lower.min()), float(bounds.min(initial=np.inf))):
@@ -400,7 +403,7 @@ def refine_kept(
     # the rounds; the rest keep their sheets and their distance (measured once).
     movable = lower < front0 + reach + BAND
     # the far part's distance is measured at the end, only if it can be the nearest
-    far_sheets = rules.sheets(kept.vertices[~movable & cross & ((flags & OWN) > 0)])
+    far_sheets = own_sheets(~movable)
     far_lower = min(
         float(lower[~movable].min(initial=np.inf)),
         float(distance_lower_bounds(far_sheets, spheres).min(initial=np.inf)),
