@@ -449,6 +449,7 @@ class Monitor:
         self._seed_hi: ArrayF64 | None = None
         self._prev_stamp: float | None = None
         self._prev_distance = math.inf  # where the last cycle's frontier was
+        self._prev_certain = False  # whether the static region or the legs' sheet decided it
         if self._static_distance is not None:
             self._static_distance.reset()
         self.last_images: CycleImages | None = None
@@ -711,6 +712,7 @@ class Monitor:
         if not history:  # (the stage never measured the region)
             history.append(Beside(None, lambda: self._next_history(allp, judged, images)))
         self._remember(t, images, float(dist.distance), history[0].result())
+        self._prev_certain = refined.certain
         # the removals to report (before the latency: the caller waits for them too)
         gap_boxes = images.gaps
         gap_verts = piece_vertices(gap_boxes, self._stack)
@@ -1038,7 +1040,7 @@ class Monitor:
             np.zeros((0, 4)) if no_refine else spheres, self._carve.alpha,
             functools.partial(carving.recarve, seeds=seeds), measure, self._pool,
             carving.front if carving.front_known else None, spheres[measured] if len(spheres) else None,
-            leg_sheets, leave_out=not self._always_refine,
+            leg_sheets, leave_out=not self._always_refine, last_certain=self._prev_certain,
         )
 
     def _leg_sheets(self, allp: PieceSet, result: DynamicResult, ctx: DynamicContext) -> ArrayF64:

@@ -22,9 +22,10 @@ sheet keeps the sheet under it and the pieces inside the sheet within
   the static region, or ``extra()`` (the sheet under the legs the robot may hide). Both
   are in the refined region too, and refinement only removes space, so the refined
   region's distance is theirs as well; only the pieces the verdict holds are coarser
-  (a superset of the refined ones). They are sought first below the pieces' lower bounds
-  and within ``SURE_SLACK`` of the last cycle's distance; when one is found there, the
-  unrefined region is measured against it (no piece nearer: left out). On the bench walk
+  (a superset of the refined ones). They are sought below the pieces' lower bounds and,
+  when the last cycle's distance was theirs, within ``SURE_SLACK`` of it; when one is found
+  there, the pieces and sheets whose bounds are below it are measured against it (none
+  nearer: left out; else refined from the same frontier as without the check). On the bench walk
   this leaves out the refinement of 8 of the 20 timed cycles (the static region decides
   while the person is far, and the sheet under the legs the robot hides at the end), with
   the same distances, 1 to 3 ms of their distance stage; in the empty cell, of 28 of 30
@@ -260,6 +261,8 @@ class Refined(NamedTuple):
         distance: The distance result of ``measure`` for the pieces and sheets.
         rounds: Carving rounds run.
         flags: (K,) the flags of :attr:`pieces` (a carved piece has its parent's).
+        certain: The distance is the static region's or ``extra()``'s: refinement was left
+            out (see the module docstring).
     """
 
     pieces: PieceSet
@@ -268,6 +271,7 @@ class Refined(NamedTuple):
     distance: Any
     rounds: int
     flags: np.ndarray
+    certain: bool = False
 
 
 Recarve = Callable[[np.ndarray, int, float, float, float], PieceSet]
@@ -324,6 +328,7 @@ def refine_kept(
     hint_spheres: ArrayF64 | None = None,
     extra: Callable[[], ArrayF64] | None = None,
     leave_out: bool = True,
+    last_certain: bool = False,
 ) -> Refined:
     """Carve again the kept pieces (``kept`` with their ``flags`` and whether each is
     ``inside`` a shell) that can decide the distance to the robot (see the module
@@ -342,7 +347,11 @@ def refine_kept(
     the region is first measured (it may still be computed on another thread until then).
     ``leave_out``: refinement is left out where it cannot change the distance (see the
     module docstring); False refines as if the static region and ``extra()`` were farther
-    (the monitor's warm-up, whose cycles must call every kernel a cycle may call)."""
+    (the monitor's warm-up, whose cycles must call every kernel a cycle may call).
+    ``last_certain``: the last cycle's distance was the static region's or ``extra()``'s
+    (:attr:`Refined.certain`); only then are they sought as far as ``SURE_SLACK`` beyond it
+    (else only below the pieces' bounds: when the pieces decide, seeking farther costs
+    static queries and a measurement for nothing)."""
     margin = rules.margin
     reach = REACH_EXTRA + margin  # farthest behind the frontier that is refined
     cross = rules.crossing(kept.vertices)
@@ -366,38 +375,47 @@ def refine_kept(
     measured_lower = lower if hint_spheres is None else distance_lower_bounds(kept.vertices, hint_spheres)
     result = None
     sure = None
+    # the hinted frontier (the last cycle's, less its slack) when no piece can be much nearer
+    hint = front_hint if front_hint is not None and len(kept) and len(spheres) and float(measured_lower.min()) >= front_hint - BAND else None
     if leave_out and len(kept) and len(spheres):
-        # the static region or ``extra()`` within ``SURE_SLACK`` of the last cycle's distance
-        # (where it decided the distance then), or nearer than any piece can be
-        last = -np.inf if front_hint is None else float(front_hint) + FRONT_SLACK + SURE_SLACK
-        sure = _certain(measure, more, max(float(measured_lower.min()), last))
+        # the static region within ``SURE_SLACK`` of the last cycle's distance (when it decided
+        # the distance then), or nearer than any piece can be (``extra()`` is asked for only
+        # when refinement is left out: it may still be computed on another thread, and asking
+        # starts the next cycle's history there, beside the carving)
+        last = -np.inf if front_hint is None or not last_certain else float(front_hint) + FRONT_SLACK + SURE_SLACK
+        sure = _certain(measure, lambda: np.zeros((0, 8, 3)), max(float(measured_lower.min()), last))
     if sure is not None:
         # when nothing of the pieces and their sheets is nearer, the distance is theirs, and
-        # refinement (which only removes space) cannot change it: it is left out
-        sheets = own_sheets(all_)
-        bounds = distance_lower_bounds(sheets, spheres if hint_spheres is None else hint_spheres)
-        sheets = np.concatenate([sheets, more()])
-        if float(sure.distance) <= min(float(measured_lower.min()), float(bounds.min(initial=np.inf))):
-            return Refined(kept, kept.select(cut), sheets, sure, rounds, flags)
-        result = measure(np.concatenate([kept.vertices, sheets]), sure)
-        if result is sure or not result.distance < sure.distance or not result.distance > 0.0:
-            return Refined(kept, kept.select(cut), sheets, result, rounds, flags)
-        front0 = float(result.distance)
-    elif front_hint is not None and len(kept) and len(spheres) and float(measured_lower.min()) >= front_hint - BAND:
-        # the hinted frontier (the last cycle's, less its slack): no piece can be much
-        # nearer, so the first measurement is skipped
-        front0 = float(front_hint)
+        # refinement (which only removes space) cannot change it: it is left out; else the
+        # pieces are refined from the same frontier as without the check (the hinted one,
+        # or the distance just measured), so the same pieces are carved
+        under = own_sheets(all_)
+        bounds = distance_lower_bounds(under, spheres if hint_spheres is None else hint_spheres)
+        d_sure = float(sure.distance)
+        if d_sure > min(float(measured_lower.min()), float(bounds.min(initial=np.inf))):
+            # only the pieces and sheets whose bounds are below it can be nearer
+            result = measure(np.concatenate([kept.vertices[measured_lower < d_sure], under[bounds < d_sure]]), sure)
+        if result is None or result is sure or not result.distance < d_sure:
+            # nothing of the pieces nearer: the static region's distance, or ``extra()``'s
+            sheets = np.concatenate([under, more()])
+            return Refined(kept, kept.select(cut), sheets, measure(more(), sure), rounds, flags, True)
+        if not result.distance > 0.0:  # contact
+            return Refined(kept, kept.select(cut), np.concatenate([under, more()]), result, rounds, flags)
+    if hint is not None:
+        # the first measurement is skipped (or, made for the check, not used)
+        front0, result = float(hint), None
+    elif result is not None:
+        # measured against the static region: the frontier (the region is measured again
+        # at the end, with the sheets)
+        front0, result = float(result.distance), None
     else:
         sheets, result = region(all_, None)
         # nothing to refine, or contact already (the cycle stops whatever the finer pieces
         # say), or the static region or ``extra()`` is the nearest part
-        if (
-            len(kept) == 0
-            or len(spheres) == 0
-            or not (0.0 < float(result.distance) < np.inf)
-            or (leave_out and _certain(measure, more, float(result.distance) * (1.0 + TIE) + TIE) is not None)
-        ):
+        if len(kept) == 0 or len(spheres) == 0 or not (0.0 < float(result.distance) < np.inf):
             return Refined(kept, kept.select(cut), sheets, result, rounds, flags)
+        if leave_out and _certain(measure, more, float(result.distance) * (1.0 + TIE) + TIE) is not None:
+            return Refined(kept, kept.select(cut), sheets, result, rounds, flags, True)
         front0 = float(result.distance)
     # Only the pieces within ``reach`` (and a margin) of the first frontier take part in
     # the rounds; the rest keep their sheets and their distance (measured once).
