@@ -25,13 +25,12 @@ sheet keeps the sheet under it and the pieces inside the sheet within
   (a superset of the refined ones). They are sought below the pieces' lower bounds and,
   when the last cycle's distance was theirs, within ``SURE_SLACK`` of it; when one is found
   there, the pieces and sheets whose bounds are below it are measured against it (none
-  nearer: left out; else refined from the same frontier as without the check). On the bench walk
-  this leaves out the refinement of 8 of the 20 timed cycles (the static region decides
-  while the person is far, and the sheet under the legs the robot hides at the end), with
-  the same distances, 1 to 3 ms of their distance stage; in the empty cell, of 28 of 30
-  cycles, 0.4 to 1.4 ms a cycle, and the kept pieces, unrefined, add 15.7 l outside
-  ``C_static`` in the median of the bench's 100 cycles instead of 15.0 l (29.3 instead of
-  24.4 l at most);
+  nearer: left out; else refined from the same frontier as without the check). On the
+  bench walk this leaves out the refinement of 7 of the 20 timed cycles (the static region
+  decides while the person is far), with the same distances (and the eight colour
+  cameras' walk's), 1 to 3 ms of their distance stage; in the empty cell, of 21 of its
+  first 30 cycles, and its kept pieces, unrefined there, add 15.5 l outside ``C_static`` in
+  the median of the bench's 100 cycles instead of 15.0 l (29.3 instead of 24.4 l at most);
 - pieces whose lower bound of the distance to the robot (the padded pieces' bounding
   spheres) is within ``BAND`` of F are carved again with F as the offset of the size
   budget: pieces at the frontier are split down to ``FINE``, coarser behind it; pieces
